@@ -1,0 +1,32 @@
+"""finray_jax: a differentiable Cosserat-rod simulator for fin-ray-effect grippers."""
+
+import os as _os
+
+import jax as _jax
+
+if _os.environ.get("FINRAY_NO_AUTO_X64", "0") != "1":
+    _jax.config.update("jax_enable_x64", True)
+
+from ._finger import Adaptor as Adaptor
+from ._finger import Crossbeams as Crossbeams
+from ._finger import DistributedLoad as DistributedLoad
+from ._finger import Finger as Finger
+from ._finger import FingerError as FingerError
+from ._finger import Material as Material
+from ._finger import PointLoad as PointLoad
+from ._finger import Section as Section
+from ._finger import validate_finger as validate_finger
+from ._rod import Integrator as Integrator
+from ._rod import PlanarRod as PlanarRod
+from ._rod import SpatialRod as SpatialRod
+from ._solution import RESULTS as RESULTS
+from ._solution import BeamSolution as BeamSolution
+from ._solution import Solution as Solution
+from ._solve import LimitLoad as LimitLoad
+from ._solve import SolverOptions as SolverOptions
+from ._solve import limit_load as limit_load
+from ._solve import solve_finger as solve_finger
+from ._solve import topology_of as topology_of
+from ._reference import ref_finger_a as ref_finger_a
+
+__version__ = "0.1.0"

@@ -1,0 +1,321 @@
+"""Multiple-shooting assembly of a finger.
+
+Every beam is cut at its junctions and load points into segments. The start state of
+every segment is an unknown; the residual holds, in this order: the two base conditions,
+continuity across every internal cut (with the jump of a point load or a crossbeam end
+wrench), the kinematic attachment of both ends of every crossbeam, and the tip junction.
+
+The *topology* (which events lie on which beam, in which order; the boundary-condition
+kinds; the rod model) is static and built once, eagerly, from a concrete finger. Design
+values (positions, thicknesses, clamp lengths, loads) flow through as arrays, so a new
+design with the same topology never recompiles.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._finger import BACK, FRONT, Finger, PointLoad, torsion_constant
+from ._rod import rod_model, segment_flow, segment_trajectories
+
+# Event kinds on a beam, in the order used to break ties at equal arc length.
+_KIND_ORDER = {"dist_end": 0, "cb": 1, "point": 2, "dist_start": 3}
+
+
+@dataclasses.dataclass(frozen=True)
+class Topology:
+    """Static description of the shooting problem (hashable)."""
+
+    mode: str
+    base_kinds: tuple[str, str]
+    n_crossbeams: int
+    events: tuple[tuple[tuple[str, int], ...], ...]  # per beam, ordered (kind, index)
+
+    @property
+    def n_beams(self):
+        return 2 + self.n_crossbeams
+
+    @property
+    def segments_per_beam(self):
+        return tuple(len(e) + 1 for e in self.events)
+
+    @property
+    def first(self):
+        return tuple(int(x) for x in np.cumsum((0,) + self.segments_per_beam)[:-1])
+
+    @property
+    def last(self):
+        return tuple(f + k - 1 for f, k in zip(self.first, self.segments_per_beam))
+
+    @property
+    def n_segments(self):
+        return sum(self.segments_per_beam)
+
+    @property
+    def seg_beam(self):
+        return tuple(b for b, k in enumerate(self.segments_per_beam) for _ in range(k))
+
+    def cut_of(self, beam, kind, index):
+        """Position of an event in the beam's event list (= index of the cut)."""
+        return self.events[beam].index((kind, index))
+
+    @property
+    def model(self):
+        return rod_model(self.mode)
+
+
+def _event_s(finger: Finger, beam: int, kind: str, index: int):
+    if kind == "cb":
+        cb = finger.crossbeams
+        return cb.front_s[index] if beam == FRONT else cb.back_s[index]
+    load = finger.loads[index]
+    if kind == "point":
+        return load.s
+    return load.s_range[0] if kind == "dist_start" else load.s_range[1]
+
+
+def build_topology(finger: Finger, mode: str) -> Topology:
+    """Sort each beam's events by their (concrete) arc length."""
+    per_beam = [[] for _ in range(finger.n_beams)]
+    for j in range(finger.n_crossbeams):
+        per_beam[FRONT].append(("cb", j))
+        per_beam[BACK].append(("cb", j))
+    for j, load in enumerate(finger.loads):
+        if isinstance(load, PointLoad):
+            per_beam[load.beam].append(("point", j))
+        else:
+            per_beam[load.beam].append(("dist_start", j))
+            per_beam[load.beam].append(("dist_end", j))
+    events = []
+    for b, evs in enumerate(per_beam):
+        key = lambda e, b=b: (float(_event_s(finger, b, *e)), _KIND_ORDER[e[0]], e[1])
+        events.append(tuple(sorted(evs, key=key)))
+    ad = finger.adaptor
+    return Topology(mode, (ad.front_base, ad.back_base), finger.n_crossbeams, tuple(events))
+
+
+# --------------------------------------------------------------------------------------
+# Geometry and the segment table (traced)
+# --------------------------------------------------------------------------------------
+
+
+class Geometry(eqx.Module):
+    """Undeformed geometry of every beam: base point (3-D), angle theta, length."""
+
+    base: jax.Array  # (B, 3)
+    theta: jax.Array  # (B,)
+    length: jax.Array  # (B,)
+    L: jax.Array  # length scale (front-beam length)
+    F: jax.Array  # force scale (front-beam EI / L^2)
+
+
+def _xz(p2):
+    return jnp.stack([p2[..., 0], jnp.zeros_like(p2[..., 0]), p2[..., 1]], axis=-1)
+
+
+def geometry(finger: Finger) -> Geometry:
+    fb, bb, tip = _xz(finger.front_base), _xz(finger.back_base), _xz(finger.tip)
+    lf = jnp.linalg.norm(tip - fb)
+    lb = jnp.linalg.norm(tip - bb)
+    tf, tb = (tip - fb) / lf, (tip - bb) / lb
+    cb = finger.crossbeams
+    pf = fb + cb.front_s[:, None] * tf
+    pb = bb + cb.back_s[:, None] * tb
+    d = pb - pf
+    lc = jnp.linalg.norm(d, axis=-1)
+    base = jnp.concatenate([jnp.stack([fb, bb]), pf], axis=0)
+    theta = jnp.concatenate(
+        [jnp.stack([jnp.arctan2(tf[0], tf[2]), jnp.arctan2(tb[0], tb[2])]),
+         jnp.arctan2(d[:, 0], d[:, 2])]
+    )
+    length = jnp.concatenate([jnp.stack([lf, lb]), lc])
+    m = finger.material
+    ei_front = m.E * finger.front.depth * finger.front.thickness**3 / 12.0
+    return Geometry(base, theta, length, lf, ei_front / lf**2)
+
+
+class SegmentTable(eqx.Module):
+    start_s: jax.Array  # (S,)
+    length: jax.Array  # (S,)
+    rigid: jax.Array  # (S,) length held rigidly by an adaptor clamp
+    stiffness: jax.Array  # (S, 6): kGA1, kGA2, EA, EI1, EI2, GJ
+    force: jax.Array  # (S, 3) distributed force per length (at load factor 1)
+    precurvature: jax.Array  # (S, 3)
+    theta: jax.Array  # (S,) undeformed frame angle
+    point: jax.Array  # (S, 3) undeformed start point
+
+
+def _section_stiffness(finger: Finger, thickness, depth):
+    m = finger.material
+    E, G, k = m.E, m.G, m.shear_coefficient
+    A = thickness * depth
+    I1 = thickness * depth**3 / 12.0  # about d1: out of plane
+    I2 = depth * thickness**3 / 12.0  # about d2: in plane
+    J = torsion_constant(thickness, depth, finger.torsion)
+    return jnp.stack([k * G * A, k * G * A, E * A, E * I1, E * I2, G * J], axis=-1)
+
+
+def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable:
+    cb = finger.crossbeams
+    ad = finger.adaptor
+    stiff_beam = jnp.concatenate(
+        [
+            _section_stiffness(finger, finger.front.thickness, finger.front.depth)[None],
+            _section_stiffness(finger, finger.back.thickness, finger.back.depth)[None],
+            _section_stiffness(finger, cb.thickness, cb.depth).reshape(-1, 6),
+        ]
+    )
+    clamp = [ad.front_clamp_length, ad.back_clamp_length] + [jnp.zeros(())] * topo.n_crossbeams
+    starts, ends, rigid, force, beams = [], [], [], [], []
+    for b, evs in enumerate(topo.events):
+        cuts = [jnp.zeros(())] + [_event_s(finger, b, *e) for e in evs] + [geo.length[b]]
+        active = []  # distributed loads covering the current segment
+        for k in range(len(evs) + 1):
+            if k > 0:
+                kind, j = evs[k - 1]
+                if kind == "dist_start":
+                    active.append(j)
+                elif kind == "dist_end":
+                    active.remove(j)
+            s0, s1 = cuts[k], cuts[k + 1]
+            starts.append(s0)
+            ends.append(s1)
+            rigid.append(jnp.clip(clamp[b] - s0, 0.0, s1 - s0))
+            f = jnp.zeros(3)
+            for j in active:
+                f = f + finger.loads[j].force_per_length
+            force.append(f)
+            beams.append(b)
+    beams = np.asarray(beams)
+    start_s = jnp.stack(starts)
+    theta = geo.theta[beams]
+    t = jnp.stack([jnp.sin(theta), jnp.zeros_like(theta), jnp.cos(theta)], axis=-1)
+    return SegmentTable(
+        start_s=start_s,
+        length=jnp.stack(ends) - start_s,
+        rigid=jnp.stack(rigid),
+        stiffness=stiff_beam[beams],
+        force=jnp.stack(force),
+        precurvature=jnp.zeros((len(beams), 3)),
+        theta=theta,
+        point=geo.base[beams] + start_s[:, None] * t,
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Residual
+# --------------------------------------------------------------------------------------
+
+
+class Problem(eqx.Module):
+    """Everything the residual needs, at load factor 1. `lam` scales every load."""
+
+    topo: Topology = eqx.field(static=True)
+    integrator: eqx.Module
+    finger: Finger
+    geo: Geometry
+    table: SegmentTable
+
+    @property
+    def model(self):
+        return self.topo.model
+
+    def scale(self):
+        return self.model.unknown_scale(self.geo.L, self.geo.F)
+
+    def start_states(self, Y):
+        """Physical full start states from scaled unknowns Y (S, n_unknown)."""
+        y = Y * self.scale()
+        return jax.vmap(self.model.full_from_unknown)(y, self.table.theta)
+
+    def params(self, lam):
+        t = self.table
+        t = eqx.tree_at(lambda x: x.force, t, t.force * lam)
+        return self.model.pack(t)
+
+    def undeformed(self):
+        y = jax.vmap(self.model.undeformed_unknown)(self.table.point, self.table.theta)
+        return y / self.scale()
+
+    def ends(self, Y, lam):
+        starts = self.start_states(Y)
+        return starts, segment_flow(self.model, self.integrator, starts, self.params(lam))
+
+    def residual(self, Y, lam):
+        starts, ends = self.ends(Y, lam)
+        return self.residual_from_states(starts, ends, lam)
+
+    def residual_from_states(self, starts, ends, lam):
+        topo, md, geo = self.topo, self.model, self.geo
+        L, F = geo.L, geo.F
+        first, last = topo.first, topo.last
+        rows = []
+
+        # Base conditions of the two main beams.
+        for b in (FRONT, BACK):
+            y = starts[first[b]]
+            point, theta = geo.base[b], geo.theta[b]
+            kind = topo.base_kinds[b]
+            if kind == "clamped":
+                rows += [md.position_rows(y, point, L), md.orientation_rows(y, theta)]
+            elif kind == "pinned":  # a hinge about y
+                rows += [md.position_rows(y, point, L), md.hinge_rows(y, theta, F, L)]
+            else:
+                rows += [md.force_rows(md.force(y), F), md.moment_rows(md.moment(y), F, L)]
+
+        # Continuity across internal cuts, with jumps.
+        for b, evs in enumerate(topo.events):
+            for k, (kind, j) in enumerate(evs):
+                a, c = first[b] + k, first[b] + k + 1
+                dn, dm = self._jump(b, kind, j, starts, ends, lam)
+                rows.append(md.kinematic_error(ends[a], starts[c], 0.0, L))
+                rows.append(md.force_rows(md.force(starts[c]) - md.force(ends[a]) + dn, F))
+                rows.append(md.moment_rows(md.moment(starts[c]) - md.moment(ends[a]) + dm, F, L))
+
+        # Crossbeam attachments (rigid joints keeping the undeformed relative angle).
+        for j in range(topo.n_crossbeams):
+            cbeam = 2 + j
+            main_f = starts[first[FRONT] + topo.cut_of(FRONT, "cb", j) + 1]
+            main_b = starts[first[BACK] + topo.cut_of(BACK, "cb", j) + 1]
+            dth_f = geo.theta[cbeam] - geo.theta[FRONT]
+            dth_b = geo.theta[cbeam] - geo.theta[BACK]
+            rows.append(md.kinematic_error(main_f, starts[first[cbeam]], dth_f, L))
+            rows.append(md.kinematic_error(main_b, ends[last[cbeam]], dth_b, L))
+
+        # Tip junction: same point, undeformed relative angle, wrench balance.
+        yf, yb = ends[last[FRONT]], ends[last[BACK]]
+        rows.append(md.kinematic_error(yf, yb, geo.theta[BACK] - geo.theta[FRONT], L))
+        rows.append(md.force_rows(md.force(yf) + md.force(yb), F))
+        rows.append(md.moment_rows(md.moment(yf) + md.moment(yb), F, L))
+        return jnp.concatenate(rows)
+
+    def _jump(self, beam, kind, j, starts, ends, lam):
+        """(F, M) such that n(s+) = n(s-) - F, m(s+) = m(s-) - M at this event."""
+        md = self.model
+        zero = jnp.zeros(3)
+        if kind == "point":
+            load = self.finger.loads[j]
+            return lam * load.force, lam * load.moment
+        if kind == "cb":
+            cbeam = 2 + j
+            if beam == FRONT:  # the crossbeam pulls the front beam with its start wrench
+                y = starts[self.topo.first[cbeam]]
+                return md.force(y), md.moment(y)
+            y = ends[self.topo.last[cbeam]]
+            return -md.force(y), -md.moment(y)
+        return zero, zero
+
+    def trajectories(self, Y, lam):
+        """Per-segment states along s: (S, steps + 2, n_full) and matching arc lengths."""
+        starts = self.start_states(Y)
+        traj = segment_trajectories(self.model, self.integrator, starts, self.params(lam))
+        traj = jnp.concatenate([starts[:, None], traj], axis=1)
+        t = self.table
+        n = traj.shape[1] - 2
+        tau = jnp.linspace(0.0, 1.0, n + 1)
+        s_flex = t.start_s[:, None] + t.rigid[:, None] + tau[None] * (t.length - t.rigid)[:, None]
+        s = jnp.concatenate([t.start_s[:, None], s_flex], axis=1)
+        return s, traj

@@ -1,0 +1,318 @@
+"""The finger: material, beams, crossbeams, adaptor and loads, as equinox Modules.
+
+Design values are float64 arrays (changing them never recompiles). What fixes shapes or
+code paths (counts, boundary-condition kinds, the beam a load acts on) is static.
+"""
+
+
+from typing import Literal
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._types import as_float
+
+BaseKind = Literal["clamped", "pinned", "free"]
+BASE_KINDS = ("clamped", "pinned", "free")
+TORSION_KINDS = ("paper", "rectangle")
+FRONT, BACK = 0, 1
+
+
+class Material(eqx.Module):
+    """Linear elastic material. E in MPa; shear_coefficient is Timoshenko's k (5/6 for a
+    rectangle; the paper's Eq. 2 uses 1)."""
+
+    E: Float[Array, ""] = eqx.field(converter=as_float)
+    nu: Float[Array, ""] = eqx.field(converter=as_float)
+    shear_coefficient: Float[Array, ""] = eqx.field(converter=as_float, default=5.0 / 6.0)
+
+    @property
+    def G(self):
+        return self.E / (2.0 * (1.0 + self.nu))
+
+
+class Section(eqx.Module):
+    """Rectangular cross-section: thickness in the finger plane, depth out of plane (mm)."""
+
+    thickness: Float[Array, ""] = eqx.field(converter=as_float)
+    depth: Float[Array, ""] = eqx.field(converter=as_float)
+
+
+class Crossbeams(eqx.Module):
+    """All crossbeams, as arrays of equal length (one entry per crossbeam).
+
+    front_s, back_s: attachment arc lengths on the front and back beams (mm).
+    """
+
+    front_s: Float[Array, " c"] = eqx.field(converter=as_float)
+    back_s: Float[Array, " c"] = eqx.field(converter=as_float)
+    thickness: Float[Array, " c"] = eqx.field(converter=as_float)
+    depth: Float[Array, " c"] = eqx.field(converter=as_float)
+
+    @property
+    def count(self) -> int:
+        return int(np.shape(self.front_s)[0])
+
+
+class Adaptor(eqx.Module):
+    """How the mounting adaptor holds the two main beams.
+
+    front_base, back_base: "clamped" | "pinned" | "free" (static).
+    front_clamp_length, back_clamp_length: length from the base held rigidly by the
+        adaptor (mm, continuous design values; needs a clamped base when positive).
+        Crossbeams landing inside a clamped length attach to the rigid adaptor.
+    """
+
+    front_base: str = eqx.field(static=True, default="clamped")
+    back_base: str = eqx.field(static=True, default="clamped")
+    front_clamp_length: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
+    back_clamp_length: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
+
+
+class AbstractLoad(eqx.Module):
+    """A load on one beam: beam 0 is the front beam, 1 the back beam, 2 + i crossbeam i."""
+
+    beam: eqx.AbstractVar[int]
+
+
+class PointLoad(AbstractLoad):
+    """Dead point force (N) and moment (N mm), world frame, at arc length s of a beam."""
+
+    beam: int = eqx.field(static=True)
+    s: Float[Array, ""] = eqx.field(converter=as_float)
+    force: Float[Array, "3"] = eqx.field(converter=as_float)
+    moment: Float[Array, "3"] = eqx.field(converter=as_float, default=(0.0, 0.0, 0.0))
+
+
+class DistributedLoad(AbstractLoad):
+    """Dead force spread uniformly over arc lengths s_range = (s0, s1) of a beam;
+    total_force (N, world frame) is the resultant."""
+
+    beam: int = eqx.field(static=True)
+    s_range: Float[Array, "2"] = eqx.field(converter=as_float)
+    total_force: Float[Array, "3"] = eqx.field(converter=as_float)
+
+    @property
+    def force_per_length(self):
+        return self.total_force / (self.s_range[1] - self.s_range[0])
+
+
+class Finger(eqx.Module):
+    """A fin-ray finger: two main beams joined at the tip, linked by crossbeams.
+
+    Points are (x, z) in mm. The front beam runs from front_base to tip, the back beam
+    from back_base to tip; both are straight in the undeformed state.
+    torsion: "paper" uses G (Ixx + Iyy); "rectangle" the Saint-Venant constant.
+    """
+
+    material: Material
+    front_base: Float[Array, "2"] = eqx.field(converter=as_float)
+    back_base: Float[Array, "2"] = eqx.field(converter=as_float)
+    tip: Float[Array, "2"] = eqx.field(converter=as_float)
+    front: Section
+    back: Section
+    crossbeams: Crossbeams
+    adaptor: Adaptor = Adaptor()
+    loads: tuple[AbstractLoad, ...] = ()
+    torsion: str = eqx.field(static=True, default="paper")
+
+    @property
+    def n_crossbeams(self) -> int:
+        return self.crossbeams.count
+
+    @property
+    def n_beams(self) -> int:
+        return 2 + self.n_crossbeams
+
+    def with_loads(self, *loads: AbstractLoad) -> "Finger":
+        return eqx.tree_at(lambda f: f.loads, self, tuple(loads))
+
+    def scale_loads(self, factor) -> "Finger":
+        """The same finger with every load multiplied by `factor`."""
+
+        def scaled(load):
+            if isinstance(load, PointLoad):
+                return PointLoad(load.beam, load.s, load.force * factor, load.moment * factor)
+            return DistributedLoad(load.beam, load.s_range, load.total_force * factor)
+
+        return eqx.tree_at(lambda f: f.loads, self, tuple(scaled(ld) for ld in self.loads))
+
+
+def beam_name(beam: int) -> str:
+    return {FRONT: "front", BACK: "back"}.get(beam, f"crossbeam {beam - 2}")
+
+
+# --------------------------------------------------------------------------------------
+# Eager validation: every rule names the field and the value.
+# --------------------------------------------------------------------------------------
+
+
+class FingerError(ValueError):
+    """An invalid finger description."""
+
+
+def _num(x):
+    return np.asarray(x, dtype=np.float64)
+
+
+def _finite(name, value):
+    v = _num(value)
+    if not np.all(np.isfinite(v)):
+        raise FingerError(f"{name} must be finite, got {v.tolist()}")
+    return v
+
+
+def _positive(name, value):
+    v = _finite(name, value)
+    if np.any(v <= 0):
+        raise FingerError(f"{name} must be positive, got {v.tolist()}")
+    return v
+
+
+def beam_lengths(finger: Finger) -> tuple[float, float]:
+    tip = _num(finger.tip)
+    return (
+        float(np.linalg.norm(tip - _num(finger.front_base))),
+        float(np.linalg.norm(tip - _num(finger.back_base))),
+    )
+
+
+def crossbeam_lengths(finger: Finger) -> np.ndarray:
+    fb, bb, tip = _num(finger.front_base), _num(finger.back_base), _num(finger.tip)
+    lf, lb = beam_lengths(finger)
+    tf, tb = (tip - fb) / lf, (tip - bb) / lb
+    cb = finger.crossbeams
+    pf = fb + _num(cb.front_s)[:, None] * tf
+    pb = bb + _num(cb.back_s)[:, None] * tb
+    return np.linalg.norm(pb - pf, axis=-1)
+
+
+def validate_finger(finger: Finger) -> None:
+    """Check a finger eagerly; raise FingerError naming the field and value."""
+    m = finger.material
+    _positive("material.E", m.E)
+    nu = _finite("material.nu", m.nu)
+    if not (-1.0 < nu < 0.5):
+        raise FingerError(f"material.nu must lie in (-1, 0.5), got {float(nu)}")
+    _positive("material.shear_coefficient", m.shear_coefficient)
+    for name in ("front_base", "back_base", "tip"):
+        v = _finite(name, getattr(finger, name))
+        if v.shape != (2,):
+            raise FingerError(f"{name} must be a point (x, z), got {v.tolist()}")
+    for beam in ("front", "back"):
+        sec = getattr(finger, beam)
+        _positive(f"{beam}.thickness", sec.thickness)
+        _positive(f"{beam}.depth", sec.depth)
+    lf, lb = beam_lengths(finger)
+    if lf <= 0:
+        raise FingerError(f"front beam has zero length: front_base equals tip {finger.tip}")
+    if lb <= 0:
+        raise FingerError(f"back beam has zero length: back_base equals tip {finger.tip}")
+    if np.allclose(_num(finger.front_base), _num(finger.back_base)):
+        raise FingerError("front_base and back_base coincide")
+    if finger.torsion not in TORSION_KINDS:
+        raise FingerError(f"torsion must be one of {TORSION_KINDS}, got {finger.torsion!r}")
+
+    cb = finger.crossbeams
+    shapes = {k: np.shape(getattr(cb, k)) for k in ("front_s", "back_s", "thickness", "depth")}
+    if len(set(shapes.values())) != 1 or len(shapes["front_s"]) != 1:
+        raise FingerError(f"crossbeam arrays must be 1-D of equal length, got shapes {shapes}")
+    fs = _finite("crossbeams.front_s", cb.front_s)
+    bs = _finite("crossbeams.back_s", cb.back_s)
+    _positive("crossbeams.thickness", cb.thickness)
+    _positive("crossbeams.depth", cb.depth)
+    for i, (a, b) in enumerate(zip(fs, bs)):
+        if not 0.0 < a < lf:
+            raise FingerError(
+                f"crossbeams[{i}].front_s = {a} lies outside the front beam (0, {lf:.6g})"
+            )
+        if not 0.0 < b < lb:
+            raise FingerError(
+                f"crossbeams[{i}].back_s = {b} lies outside the back beam (0, {lb:.6g})"
+            )
+    for i in range(len(fs) - 1):
+        df, db = fs[i + 1] - fs[i], bs[i + 1] - bs[i]
+        if df * db <= 0 or df == 0:
+            raise FingerError(
+                f"crossbeams {i} and {i + 1} cross or touch: front_s {fs[i]} -> {fs[i + 1]}, "
+                f"back_s {bs[i]} -> {bs[i + 1]} (list crossbeams in increasing front_s, "
+                "with back_s increasing too)"
+            )
+        if df < 0:
+            raise FingerError(
+                f"crossbeams must be listed base to tip: crossbeams[{i + 1}].front_s = "
+                f"{fs[i + 1]} < crossbeams[{i}].front_s = {fs[i]}"
+            )
+    if len(fs) and np.any(crossbeam_lengths(finger) <= 1e-9):
+        raise FingerError("a crossbeam has zero length (its two ends coincide)")
+
+    ad = finger.adaptor
+    for name, kind in (("adaptor.front_base", ad.front_base), ("adaptor.back_base", ad.back_base)):
+        if kind not in BASE_KINDS:
+            raise FingerError(f"{name} must be one of {BASE_KINDS}, got {kind!r}")
+    for name, kind, length, total in (
+        ("front", ad.front_base, ad.front_clamp_length, lf),
+        ("back", ad.back_base, ad.back_clamp_length, lb),
+    ):
+        lc = float(_finite(f"adaptor.{name}_clamp_length", length))
+        if not 0.0 <= lc < total:
+            raise FingerError(
+                f"adaptor.{name}_clamp_length must lie in [0, {total:.6g}), got {lc}"
+            )
+        if lc > 0 and kind != "clamped":
+            raise FingerError(
+                f"adaptor.{name}_clamp_length = {lc} needs adaptor.{name}_base = 'clamped', "
+                f"got {kind!r}"
+            )
+
+    lengths = [lf, lb, *crossbeam_lengths(finger).tolist()]
+    for j, load in enumerate(finger.loads):
+        where = f"loads[{j}]"
+        if not isinstance(load.beam, int) or not 0 <= load.beam < finger.n_beams:
+            raise FingerError(
+                f"{where}.beam = {load.beam!r} names no beam (0 front, 1 back, "
+                f"2..{finger.n_beams - 1} crossbeams)"
+            )
+        total = lengths[load.beam]
+        if isinstance(load, PointLoad):
+            s = float(_finite(f"{where}.s", load.s))
+            _finite(f"{where}.force", load.force)
+            _finite(f"{where}.moment", load.moment)
+            if not 0.0 < s <= total:
+                raise FingerError(
+                    f"{where}.s = {s} lies outside the {beam_name(load.beam)} beam (0, {total:.6g}]"
+                )
+        elif isinstance(load, DistributedLoad):
+            s0, s1 = _finite(f"{where}.s_range", load.s_range).tolist()
+            _finite(f"{where}.total_force", load.total_force)
+            if not 0.0 <= s0 < s1 <= total:
+                raise FingerError(
+                    f"{where}.s_range = [{s0}, {s1}] must satisfy 0 <= s0 < s1 <= {total:.6g} "
+                    f"on the {beam_name(load.beam)} beam"
+                )
+        else:
+            raise FingerError(f"{where} is not a PointLoad or DistributedLoad: {load!r}")
+
+
+def loads_in_plane(finger: Finger) -> bool:
+    """True when every load acts in the x-z plane (no y force, no x or z moment)."""
+    for load in finger.loads:
+        if isinstance(load, PointLoad):
+            if abs(float(load.force[1])) > 0 or np.any(np.abs(_num(load.moment)[[0, 2]]) > 0):
+                return False
+        elif abs(float(load.total_force[1])) > 0:
+            return False
+    return True
+
+
+def torsion_constant(thickness, depth, kind: str):
+    """Torsion constant J of a rectangle: 'paper' Ixx + Iyy, or Saint-Venant's."""
+    if kind == "paper":
+        return thickness * depth * (thickness**2 + depth**2) / 12.0
+    a = jnp.maximum(thickness, depth)
+    b = jnp.minimum(thickness, depth)
+    return a * b**3 * (1.0 / 3.0 - 0.21 * (b / a) * (1.0 - b**4 / (12.0 * a**4)))
+
+

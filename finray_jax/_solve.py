@@ -1,0 +1,404 @@
+"""Newton shooting with load continuation, fold detection and the limit load."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax import lax
+
+from ._assembly import Geometry, Problem, build_topology, geometry, segment_table
+from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
+from ._rod import Integrator
+from ._rotation import log_so3, planar_frame
+from ._solution import (
+    RESULTS,
+    BeamSolution,
+    CrossbeamWrenches,
+    Reaction,
+    Solution,
+    Tip,
+    stack_beams,
+)
+from ._types import check_x64
+
+MODES = ("auto", "planar", "spatial")
+
+
+class SolverOptions(eqx.Module):
+    """Numerical choices of the equilibrium solve (all static).
+
+    rtol, atol: Newton tolerances on the scaled unknowns and residual.
+    max_newton_steps: Newton iterations per root solve.
+    direct_first: first try Newton at the full load from the initial guess; fall back to
+        arc-length continuation when it fails or lands beyond a fold.
+    initial_arc_step, min_arc_step, max_arc_step: pseudo-arc-length step sizes, in the
+        coordinates where the initial tangent has equal load and shape parts.
+    max_continuation_steps: bound on continuation steps (vmapped batches run in lock step).
+    """
+
+    rtol: float = eqx.field(static=True, default=1e-10)
+    atol: float = eqx.field(static=True, default=1e-10)
+    max_newton_steps: int = eqx.field(static=True, default=20)
+    direct_first: bool = eqx.field(static=True, default=True)
+    initial_arc_step: float = eqx.field(static=True, default=0.3)
+    min_arc_step: float = eqx.field(static=True, default=2e-4)
+    max_arc_step: float = eqx.field(static=True, default=0.8)
+    max_continuation_steps: int = eqx.field(static=True, default=120)
+
+    def __check_init__(self):
+        for name in ("rtol", "atol", "initial_arc_step", "min_arc_step", "max_arc_step"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise ValueError(f"SolverOptions.{name} must be a positive number, got {v!r}")
+        for name in ("max_newton_steps", "max_continuation_steps"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"SolverOptions.{name} must be a positive integer, got {v!r}")
+
+
+# --------------------------------------------------------------------------------------
+# Root solves
+# --------------------------------------------------------------------------------------
+
+
+def _natural_fn(y, args):
+    problem, lam = args
+    return problem.residual(y.reshape(problem.table.length.shape[0], -1), lam).reshape(-1)
+
+
+def _newton(fn, y0, args, options: SolverOptions):
+    sol = optx.root_find(
+        fn,
+        optx.Newton(rtol=options.rtol, atol=options.atol),
+        y0,
+        args,
+        max_steps=options.max_newton_steps,
+        adjoint=optx.ImplicitAdjoint(),
+        throw=False,
+    )
+    ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(
+        jax.flatten_util.ravel_pytree(sol.value)[0]))
+    return sol.value, ok, sol.stats["num_steps"]
+
+
+def _jacobians(problem, y, lam):
+    J, Jl = jax.jacfwd(lambda a, b: _natural_fn(a, (problem, b)), argnums=(0, 1))(y, lam)
+    return J, Jl
+
+
+def _tangent(problem, y, lam, w, t_prev):
+    """Unit tangent of the equilibrium path in (w y, lam), oriented along t_prev."""
+    J, Jl = _jacobians(problem, y, lam)
+    A = jnp.concatenate([jnp.concatenate([J / w, Jl[:, None]], axis=1), t_prev[None]], axis=0)
+    rhs = jnp.zeros(A.shape[0]).at[-1].set(1.0)
+    t = jnp.linalg.solve(A, rhs)
+    return t / jnp.linalg.norm(t)
+
+
+def _arc_fn(z, args):
+    y, lam = z
+    problem, y_prev, lam_prev, t, ds, w = args
+    r = _natural_fn(y, (problem, lam))
+    c = jnp.dot(t[:-1], w * (y - y_prev)) + t[-1] * (lam - lam_prev) - ds
+    return r, c
+
+
+class _Arc(eqx.Module):
+    y: jax.Array
+    lam: jax.Array
+    t: jax.Array
+    ds: jax.Array
+    near_fold: jax.Array
+    last_fold: jax.Array
+    done: jax.Array
+    reached: jax.Array
+    y_over: jax.Array  # first accepted point beyond the target
+    lam_over: jax.Array
+    steps: jax.Array
+    iterations: jax.Array
+
+
+def _continuation(problem: Problem, y0, target, options: SolverOptions):
+    """Pseudo-arc-length continuation from (y0, lam = 0) toward lam = target.
+
+    Stops when the path crosses `target` (reached) or when it folds back (the load factor
+    stops increasing), refining the fold by step halving down to min_arc_step. Returns the
+    final state: for `reached`, the point before and the first point past the target.
+    """
+    n = y0.shape[0]
+    lam0 = jnp.zeros(())
+    e = jnp.zeros(n + 1).at[-1].set(1.0)
+    t_raw = _tangent(problem, y0, lam0, 1.0, e)
+    w = jnp.abs(t_raw[-1]) / jnp.maximum(jnp.linalg.norm(t_raw[:-1]), 1e-30)
+    t0 = _tangent(problem, y0, lam0, w, e)
+    opts = options
+
+    def cond(s: _Arc):
+        return ~s.done & (s.steps < opts.max_continuation_steps)
+
+    def body(s: _Arc):
+        pred = (s.y + s.ds * s.t[:-1] / w, s.lam + s.ds * s.t[-1])
+        z, ok, nit = _newton(_arc_fn, pred, (problem, s.y, s.lam, s.t, s.ds, w), opts)
+        y1, lam1 = z
+        t1 = _tangent(problem, y1, lam1, w, s.t)
+        folded = ok & (t1[-1] <= 0.0)
+        accept = ok & ~folded
+        reached = accept & (lam1 >= target)
+        grow = accept & (nit <= 4) & ~s.near_fold
+        ds_new = jnp.where(accept, jnp.where(grow, jnp.minimum(1.6 * s.ds, opts.max_arc_step),
+                                             s.ds), 0.5 * s.ds)
+        near_fold = s.near_fold | folded
+        tiny = ds_new < opts.min_arc_step
+        keep = accept & ~reached
+        return _Arc(
+            y=jnp.where(keep, y1, s.y),
+            lam=jnp.where(keep, lam1, s.lam),
+            t=jnp.where(keep, t1, s.t),
+            ds=ds_new,
+            near_fold=near_fold,
+            last_fold=jnp.where(accept, False, folded),
+            done=reached | (~accept & tiny),
+            reached=reached,
+            y_over=jnp.where(reached, y1, s.y_over),
+            lam_over=jnp.where(reached, lam1, s.lam_over),
+            steps=s.steps + 1,
+            iterations=s.iterations + nit,
+        )
+
+    init = _Arc(y0, lam0, t0, jnp.asarray(opts.initial_arc_step), jnp.asarray(False),
+                jnp.asarray(False), jnp.asarray(False), jnp.asarray(False), y0, lam0,
+                jnp.asarray(0), jnp.asarray(0))
+    return lax.while_loop(cond, body, init)
+
+
+def _fold_result(s: _Arc):
+    failed = RESULTS.where(s.near_fold, RESULTS.beyond_limit_load, RESULTS.continuation_failed)
+    return RESULTS.where(s.reached, RESULTS.successful, failed)
+
+
+# --------------------------------------------------------------------------------------
+# The jitted cores
+# --------------------------------------------------------------------------------------
+
+
+def _make_problem(topo, integrator, finger) -> Problem:
+    geo = geometry(finger)
+    return Problem(topo, integrator, finger, geo, segment_table(topo, finger, geo))
+
+
+def _nograd(tree):
+    return jax.tree_util.tree_map(lambda x: lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
+
+
+def _det_sign(problem, y, lam):
+    J, _ = _jacobians(problem, y, lam)
+    return jnp.linalg.slogdet(J)[0]
+
+
+@eqx.filter_jit
+def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
+    problem = _make_problem(topo, integrator, finger)
+    quiet = _nograd(problem)
+    y_und = problem.undeformed().reshape(-1)
+    y_start = lax.stop_gradient(y_und if init is None else init)
+    one = jnp.ones(())
+
+    def continuation():
+        s = _continuation(quiet, lax.stop_gradient(y_und), one, options)
+        frac = (1.0 - s.lam) / jnp.maximum(s.lam_over - s.lam, 1e-300)
+        guess = jnp.where(s.reached, s.y + frac * (s.y_over - s.y), s.y)
+        lam_end = jnp.where(s.reached, one, s.lam)
+        return guess, lam_end, _fold_result(s), s.iterations
+
+    if options.direct_first:
+        y_d, ok_d, nit_d = _newton(_natural_fn, y_start, (quiet, one), options)
+        same_branch = _det_sign(quiet, y_d, one) == _det_sign(quiet, y_und, 0.0 * one)
+        direct_ok = ok_d & same_branch
+        guess, lam_end, code, nit_c = lax.cond(
+            direct_ok,
+            lambda: (y_d, one, RESULTS.successful, jnp.asarray(0)),
+            continuation,
+        )
+        iterations = nit_d + nit_c
+    else:
+        guess, lam_end, code, iterations = continuation()
+
+    # The final root solve carries the gradient (implicit function theorem).
+    guess = lax.stop_gradient(guess)
+    y_fin, ok_fin, nit_fin = _newton(_natural_fn, guess, (problem, lam_end), options)
+    reached = code == RESULTS.successful
+    y = jnp.where(reached, y_fin, guess)
+    code = RESULTS.where(reached & ~ok_fin, RESULTS.nonlinear_divergence, code)
+    return _outputs(problem, y, lam_end, code, iterations + nit_fin)
+
+
+@eqx.filter_jit
+def _limit_core(topo, integrator, options: SolverOptions, finger: Finger):
+    problem = _nograd(_make_problem(topo, integrator, finger))
+    y_und = problem.undeformed().reshape(-1)
+    s = _continuation(problem, y_und, jnp.asarray(jnp.inf), options)
+    code = RESULTS.where(s.near_fold, RESULTS.successful, RESULTS.continuation_failed)
+    return s.lam, _outputs(problem, s.y, s.lam, code, s.iterations)
+
+
+def _outputs(problem: Problem, y, lam, code, iterations) -> Solution:
+    topo, md, geo = problem.topo, problem.model, problem.geo
+    S = problem.table.length.shape[0]
+    Y = y.reshape(S, -1)
+    r = problem.residual(Y, lam)
+    s, traj = problem.trajectories(Y, lam)
+
+    def beam(b):
+        a, z = topo.first[b], topo.last[b] + 1
+        st = traj[a:z].reshape(-1, traj.shape[-1])
+        return BeamSolution(
+            s=s[a:z].reshape(-1),
+            position=jax.vmap(md.position)(st),
+            frame=jax.vmap(md.frame)(st),
+            force=jax.vmap(md.force)(st),
+            moment=jax.vmap(md.moment)(st),
+        )
+
+    front, back = beam(FRONT), beam(BACK)
+    cbs = [beam(2 + j) for j in range(topo.n_crossbeams)]
+    crossbeams = stack_beams(cbs) if cbs else _empty_beams(front)
+
+    def reaction(bs: BeamSolution):
+        return Reaction(-bs.force[0], -bs.moment[0])
+
+    if cbs:
+        wrenches = CrossbeamWrenches(
+            front_force=crossbeams.force[:, 0],
+            front_moment=crossbeams.moment[:, 0],
+            back_force=-crossbeams.force[:, -1],
+            back_moment=-crossbeams.moment[:, -1],
+        )
+    else:
+        z = jnp.zeros((0, 3))
+        wrenches = CrossbeamWrenches(z, z, z, z)
+
+    tip0 = geo.base[FRONT] + geo.length[FRONT] * jnp.stack(
+        [jnp.sin(geo.theta[FRONT]), 0.0, jnp.cos(geo.theta[FRONT])]
+    )
+    R_tip = front.frame[-1]
+    rot = log_so3(R_tip @ planar_frame(geo.theta[FRONT]).T)
+    tip = Tip(front.position[-1], front.position[-1] - tip0, rot)
+    return Solution(
+        result=code,
+        load_factor=lam,
+        iterations=iterations,
+        max_residual=jnp.max(jnp.abs(r)),
+        front=front,
+        back=back,
+        crossbeams=crossbeams,
+        reactions_front=reaction(front),
+        reactions_back=reaction(back),
+        tip=tip,
+        crossbeam_wrenches=wrenches,
+        unknowns=y,
+        mode=topo.mode,
+    )
+
+
+def _empty_beams(like: BeamSolution):
+    return jax.tree_util.tree_map(lambda x: jnp.zeros((0,) + x.shape, x.dtype), like)
+
+
+# --------------------------------------------------------------------------------------
+# Public entry points
+# --------------------------------------------------------------------------------------
+
+
+def _is_concrete(finger) -> bool:
+    leaves = jax.tree_util.tree_leaves(finger)
+    return not any(isinstance(x, jax.core.Tracer) for x in leaves)
+
+
+def resolve_mode(finger: Finger, mode: str) -> str:
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if mode != "auto":
+        return mode
+    if not _is_concrete(finger):
+        return "spatial"
+    return "planar" if loads_in_plane(finger) else "spatial"
+
+
+def prepare(finger: Finger, mode: str, topology=None):
+    """Eager checks and the static topology of a finger."""
+    check_x64("finray_jax")
+    if not isinstance(finger, Finger):
+        raise TypeError(f"expected a Finger, got {type(finger).__name__}")
+    if _is_concrete(finger):
+        validate_finger(finger)
+    if topology is not None:
+        return topology
+    if not _is_concrete(finger):
+        raise ValueError(
+            "cannot build the topology from traced values: pass topology=finray_jax."
+            "topology_of(example_finger, mode) when solving under jit or vmap"
+        )
+    return build_topology(finger, resolve_mode(finger, mode))
+
+
+def topology_of(finger: Finger, mode: str = "auto"):
+    """The static topology (event order, boundary kinds, model) of a concrete finger."""
+    return prepare(finger, mode)
+
+
+def solve_finger(
+    finger: Finger,
+    *,
+    mode: str = "auto",
+    integrator: Integrator = Integrator(),
+    options: SolverOptions = SolverOptions(),
+    init: Solution | None = None,
+    topology=None,
+    throw: bool = False,
+) -> Solution:
+    """Static equilibrium of a finger under its loads.
+
+    mode: "planar" (x, z, theta), "spatial" (3-D) or "auto" (planar when every load lies
+        in the x-z plane).
+    init: a previous Solution of the same topology to start Newton from (warm start).
+    throw: raise if the solve does not converge (use False in batches and read `result`).
+    """
+    topo = prepare(finger, mode, topology)
+    y0 = None if init is None else init.unknowns
+    sol = _solve_core(topo, integrator, options, finger, y0)
+    if throw and sol.result != RESULTS.successful:
+        raise RuntimeError(f"solve_finger: {sol.status}: {RESULTS[sol.result]}")
+    return sol
+
+
+class LimitLoad(eqx.Module):
+    """The limit (fold) load factor on a finger's loads, and the equilibrium there."""
+
+    load_factor: jax.Array
+    solution: Solution
+
+    @property
+    def found(self):
+        return self.solution.result == RESULTS.successful
+
+
+def limit_load(
+    finger: Finger,
+    *,
+    mode: str = "auto",
+    integrator: Integrator = Integrator(),
+    options: SolverOptions = SolverOptions(),
+    topology=None,
+) -> LimitLoad:
+    """Trace the loading branch by arc-length continuation up to its fold.
+
+    Returns the largest load factor on the finger's loads for which an equilibrium exists
+    on the loading branch (refined to about min_arc_step^2 in the scaled arc length).
+    """
+    topo = prepare(finger, mode, topology)
+    lam, sol = _limit_core(topo, integrator, options, finger)
+    return LimitLoad(lam, sol)
+
+
+_unused = (Geometry, np)
