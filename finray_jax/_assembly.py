@@ -12,6 +12,7 @@ design with the same topology never recompiles.
 """
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -65,6 +66,70 @@ class Topology:
     @property
     def model(self):
         return rod_model(self.mode)
+
+    @functools.cached_property
+    def index(self) -> "_Index":
+        return _build_index(self)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Index:
+    """Static gather/scatter indices of the residual (into concat(starts, ends))."""
+
+    kin_a: np.ndarray
+    kin_b: np.ndarray
+    kin_beam_a: np.ndarray
+    kin_beam_b: np.ndarray
+    w_a: np.ndarray
+    w_b: np.ndarray
+    w_sign_a: np.ndarray
+    point_rows: np.ndarray
+    point_loads: tuple
+    cb_rows: np.ndarray
+    cb_src: np.ndarray
+    cb_sign: np.ndarray
+
+
+def _build_index(topo: Topology) -> _Index:
+    S, first, last = topo.n_segments, topo.first, topo.last
+    end = lambda i: S + i
+    kin = []  # (a, b, beam_a, beam_b)
+    wr = []  # (a, b, sign_a)
+    point_rows, point_loads, cb_rows, cb_src, cb_sign = [], [], [], [], []
+    for b, evs in enumerate(topo.events):
+        for k, (kind, j) in enumerate(evs):
+            a, c = first[b] + k, first[b] + k + 1
+            kin.append((end(a), c, b, b))
+            row = len(wr)
+            wr.append((end(a), c, -1.0))
+            if kind == "point":
+                point_rows.append(row)
+                point_loads.append(j)
+            elif kind == "cb":
+                cb_rows.append(row)
+                if b == FRONT:
+                    cb_src.append(first[2 + j])
+                    cb_sign.append(1.0)
+                else:
+                    cb_src.append(end(last[2 + j]))
+                    cb_sign.append(-1.0)
+    for j in range(topo.n_crossbeams):
+        cbeam = 2 + j
+        main_f = first[FRONT] + topo.cut_of(FRONT, "cb", j) + 1
+        main_b = first[BACK] + topo.cut_of(BACK, "cb", j) + 1
+        kin.append((main_f, first[cbeam], FRONT, cbeam))
+        kin.append((main_b, end(last[cbeam]), BACK, cbeam))
+    kin.append((end(last[FRONT]), end(last[BACK]), FRONT, BACK))
+    wr.append((end(last[FRONT]), end(last[BACK]), 1.0))
+    kin = np.asarray(kin, dtype=np.int64).reshape(-1, 4)
+    i = lambda x: np.asarray(x, dtype=np.int64)
+    return _Index(
+        kin_a=kin[:, 0], kin_b=kin[:, 1], kin_beam_a=kin[:, 2], kin_beam_b=kin[:, 3],
+        w_a=i([w[0] for w in wr]), w_b=i([w[1] for w in wr]),
+        w_sign_a=np.asarray([w[2] for w in wr]),
+        point_rows=i(point_rows), point_loads=tuple(point_loads),
+        cb_rows=i(cb_rows), cb_src=i(cb_src), cb_sign=np.asarray(cb_sign),
+    )
 
 
 def _event_s(finger: Finger, beam: int, kind: str, index: int):
@@ -251,12 +316,13 @@ class Problem(eqx.Module):
     def residual_from_states(self, starts, ends, lam):
         topo, md, geo = self.topo, self.model, self.geo
         L, F = geo.L, geo.F
-        first, last = topo.first, topo.last
+        ix = topo.index
+        S = starts.shape[0]
         rows = []
 
         # Base conditions of the two main beams.
         for b in (FRONT, BACK):
-            y = starts[first[b]]
+            y = starts[topo.first[b]]
             point, theta = geo.base[b], geo.theta[b]
             kind = topo.base_kinds[b]
             if kind == "clamped":
@@ -266,47 +332,42 @@ class Problem(eqx.Module):
             else:
                 rows += [md.force_rows(md.force(y), F), md.moment_rows(md.moment(y), F, L)]
 
-        # Continuity across internal cuts, with jumps.
-        for b, evs in enumerate(topo.events):
-            for k, (kind, j) in enumerate(evs):
-                a, c = first[b] + k, first[b] + k + 1
-                dn, dm = self._jump(b, kind, j, starts, ends, lam)
-                rows.append(md.kinematic_error(ends[a], starts[c], 0.0, L))
-                rows.append(md.force_rows(md.force(starts[c]) - md.force(ends[a]) + dn, F))
-                rows.append(md.moment_rows(md.moment(starts[c]) - md.moment(ends[a]) + dm, F, L))
+        both = jnp.concatenate([starts, ends])  # index i: start of i; S + i: end of i
+        # Kinematic pairs: b must equal a turned by theta[beam_b] - theta[beam_a]
+        # (internal cuts, both crossbeam ends, the tip junction).
+        dth = geo.theta[ix.kin_beam_b] - geo.theta[ix.kin_beam_a]
+        kin = jax.vmap(md.kinematic_error, in_axes=(0, 0, 0, None))(
+            both[ix.kin_a], both[ix.kin_b], dth, L
+        )
+        rows.append(kin.reshape(-1))
 
-        # Crossbeam attachments (rigid joints keeping the undeformed relative angle).
-        for j in range(topo.n_crossbeams):
-            cbeam = 2 + j
-            main_f = starts[first[FRONT] + topo.cut_of(FRONT, "cb", j) + 1]
-            main_b = starts[first[BACK] + topo.cut_of(BACK, "cb", j) + 1]
-            dth_f = geo.theta[cbeam] - geo.theta[FRONT]
-            dth_b = geo.theta[cbeam] - geo.theta[BACK]
-            rows.append(md.kinematic_error(main_f, starts[first[cbeam]], dth_f, L))
-            rows.append(md.kinematic_error(main_b, ends[last[cbeam]], dth_b, L))
-
-        # Tip junction: same point, undeformed relative angle, wrench balance.
-        yf, yb = ends[last[FRONT]], ends[last[BACK]]
-        rows.append(md.kinematic_error(yf, yb, geo.theta[BACK] - geo.theta[FRONT], L))
-        rows.append(md.force_rows(md.force(yf) + md.force(yb), F))
-        rows.append(md.moment_rows(md.moment(yf) + md.moment(yb), F, L))
+        # Wrench balance: across every internal cut n(s+) - n(s-) + jump = 0, and at the
+        # tip n_front + n_back = 0 (a zero-jump row with both signs +).
+        force = jax.vmap(md.force)(both)
+        moment = jax.vmap(md.moment)(both)
+        jf, jm = self._jumps(starts, ends, lam, force, moment, S)
+        wf = ix.w_sign_a[:, None] * force[ix.w_a] + force[ix.w_b] + jf
+        wm = ix.w_sign_a[:, None] * moment[ix.w_a] + moment[ix.w_b] + jm
+        rows.append(jax.vmap(md.force_rows, in_axes=(0, None))(wf, F).reshape(-1))
+        rows.append(jax.vmap(md.moment_rows, in_axes=(0, None, None))(wm, F, L).reshape(-1))
         return jnp.concatenate(rows)
 
-    def _jump(self, beam, kind, j, starts, ends, lam):
-        """(F, M) such that n(s+) = n(s-) - F, m(s+) = m(s-) - M at this event."""
-        md = self.model
-        zero = jnp.zeros(3)
-        if kind == "point":
-            load = self.finger.loads[j]
-            return lam * load.force, lam * load.moment
-        if kind == "cb":
-            cbeam = 2 + j
-            if beam == FRONT:  # the crossbeam pulls the front beam with its start wrench
-                y = starts[self.topo.first[cbeam]]
-                return md.force(y), md.moment(y)
-            y = ends[self.topo.last[cbeam]]
-            return -md.force(y), -md.moment(y)
-        return zero, zero
+    def _jumps(self, starts, ends, lam, force, moment, S):
+        """Per wrench row (F, M) with n(s+) = n(s-) - F at that cut; the tip row gets 0."""
+        ix = self.topo.index
+        n_rows = ix.w_a.shape[0]
+        jf = jnp.zeros((n_rows, 3))
+        jm = jnp.zeros((n_rows, 3))
+        if len(ix.point_rows):
+            loads = [self.finger.loads[j] for j in ix.point_loads]
+            jf = jf.at[ix.point_rows].add(lam * jnp.stack([ld.force for ld in loads]))
+            jm = jm.at[ix.point_rows].add(lam * jnp.stack([ld.moment for ld in loads]))
+        if len(ix.cb_rows):
+            # A crossbeam pulls the front beam with its start wrench and the back beam with
+            # minus its end wrench.
+            jf = jf.at[ix.cb_rows].add(ix.cb_sign[:, None] * force[ix.cb_src])
+            jm = jm.at[ix.cb_rows].add(ix.cb_sign[:, None] * moment[ix.cb_src])
+        return jf, jm
 
     def trajectories(self, Y, lam):
         """Per-segment states along s: (S, steps + 2, n_full) and matching arc lengths."""

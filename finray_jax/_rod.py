@@ -21,6 +21,7 @@ import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 from ._rotation import exp_so3, frame_mismatch, hat, planar_frame
@@ -29,24 +30,43 @@ from ._rotation import exp_so3, frame_mismatch, hat, planar_frame
 class Integrator(eqx.Module):
     """Fixed-step integration of each segment.
 
-    solver: a diffrax explicit Runge-Kutta solver (default Tsit5). Use scan_kind="lax":
-        the default checkpointed stage loop does not support forward mode.
+    solver: a diffrax explicit Runge-Kutta solver (default Tsit5).
     steps: steps per segment (fixes shapes; changing it recompiles).
-    backend: "scan" steps the diffrax solver in a `lax.scan` (fast);
-        "diffeqsolve" calls `diffrax.diffeqsolve` with constant steps (reference).
+    backend: "tableau" (default) takes the solver's Butcher tableau and steps it in a
+        lean `lax.scan`, which compiles and runs several times faster for these tiny
+        states; "step" calls the solver's own `step` in a scan; "diffeqsolve" calls
+        `diffrax.diffeqsolve` with constant steps. All three give the same answer.
     """
 
     solver: dfx.AbstractSolver = dfx.Tsit5(scan_kind="lax")
     steps: int = eqx.field(static=True, default=10)
-    backend: str = eqx.field(static=True, default="scan")
+    backend: str = eqx.field(static=True, default="tableau")
 
     def __check_init__(self):
         if not isinstance(self.steps, int) or self.steps < 1:
             raise ValueError(f"Integrator.steps must be a positive integer, got {self.steps!r}")
-        if self.backend not in ("scan", "diffeqsolve"):
+        if self.backend not in BACKENDS:
+            raise ValueError(f"Integrator.backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.backend == "tableau" and getattr(self.solver, "tableau", None) is None:
             raise ValueError(
-                f"Integrator.backend must be 'scan' or 'diffeqsolve', got {self.backend!r}"
+                f"Integrator.solver {type(self.solver).__name__} has no Butcher tableau; use an "
+                "explicit Runge-Kutta solver (Tsit5, Dopri5, Bosh3, Heun, ...) or "
+                "backend='step'"
             )
+
+
+BACKENDS = ("tableau", "step", "diffeqsolve")
+
+
+def _rk_step(tableau, rhs, y, h):
+    """One explicit Runge-Kutta step from a diffrax Butcher tableau (autonomous rhs)."""
+    b = np.asarray(tableau.b_sol)
+    n_stages = int(np.max(np.nonzero(b)[0])) + 1  # stages past the last weight are unused
+    ks = [rhs(y)]
+    for i in range(1, n_stages):
+        a = np.asarray(tableau.a_lower[i - 1])
+        ks.append(rhs(y + h * sum(float(aj) * k for aj, k in zip(a, ks) if aj != 0.0)))
+    return y + h * sum(float(bi) * k for bi, k in zip(b, ks) if bi != 0.0)
 
 
 # --------------------------------------------------------------------------------------
@@ -311,6 +331,17 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
         )
         return sol.ys if save_all else sol.ys[-1]
     solver = integrator.solver
+    if integrator.backend == "tableau":
+        f = lambda yy: flex * model.rhs(yy, q)
+
+        def rk(yy, i):
+            y1 = _rk_step(solver.tableau, f, yy, h)
+            return y1, (y1 if save_all else None)
+
+        y_end, ys = lax.scan(rk, y, None, length=n)
+        if save_all:
+            return jnp.concatenate([y[None], ys], axis=0)
+        return y_end
     state = solver.init(term, 0.0, h, y, q)
 
     def body(carry, i):

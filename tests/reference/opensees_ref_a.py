@@ -284,42 +284,53 @@ def trace_limit(h, shear_k, pattern, ctrl_s, du, u_max, refine=(5, 5, 5)):
     through the three highest points.  Returns dict with the peak and the trace.
     """
     def run(segments, stop_after_peak):
-        """segments: list of (n_steps, step) in control displacement."""
+        """segments: list of (n_steps, step) of the control displacement.  A step that
+        fails is retried as 4 sub-steps (recursively, down to step / 64).  Returns the
+        control displacements, load factors and the list of steps actually taken."""
         fg = Finger(h, shear_k)
         fg.apply_pattern(pattern)
         node = fg.front_node(ctrl_s)
-        us, lams = [0.0], [0.0]
-        for (nst, step) in segments:
-            static_analysis(("DisplacementControl", node, 1, step))
-            for _ in range(nst):
-                ok = ops.analyze(1)
-                if ok != 0:
-                    raise RuntimeError(f"displacement control failed at u={ops.nodeDisp(node, 1)}")
+        us, lams, taken = [0.0], [0.0], []
+
+        def step_once(st, depth=0):
+            static_analysis(("DisplacementControl", node, 1, st))
+            if ops.analyze(1) == 0:
                 us.append(ops.nodeDisp(node, 1))
                 lams.append(ops.getTime())
+                taken.append(st)
+                return
+            if depth >= 3:
+                raise RuntimeError(f"displacement control failed at u={ops.nodeDisp(node, 1)}")
+            for _ in range(4):
+                step_once(st / 4, depth + 1)
+
+        for (nst, st) in segments:
+            for _ in range(nst):
+                step_once(st)
                 if stop_after_peak and len(lams) > 3 and lams[-1] < lams[-2]:
-                    return np.array(us), np.array(lams)
-        return np.array(us), np.array(lams)
+                    return np.array(us), np.array(lams), taken
+        return np.array(us), np.array(lams), taken
+
+    def compress(steps):
+        segs = []
+        for st in steps:
+            if segs and segs[-1][1] == st:
+                segs[-1][0] += 1
+            else:
+                segs.append([1, st])
+        return [tuple(x) for x in segs]
 
     # coarse trace until the load factor decreases
-    us, lams = run([(int(u_max / du), du)], True)
+    us, lams, taken = run([(int(u_max / du), du)], True)
     if not (lams[-1] < lams[-2]):
         raise RuntimeError("no peak found up to u_max")
     coarse = (us.copy(), lams.copy())
-    segments = [(len(us) - 1, du)]
-    step = du
     for r in refine:
         i = int(np.argmax(lams))
-        # keep the first i - 1 steps (they reach us[i - 1]), then 2 r steps of step / r
-        pre, m = [], i - 1
-        for (nst, st) in segments:
-            take = min(nst, m)
-            if take > 0:
-                pre.append((take, st))
-            m -= take
-        step = step / r
-        segments = pre + [(2 * r, step)]
-        us, lams = run(segments, False)
+        # redo the first i - 1 steps (they reach us[i - 1]), then 2 r steps across the peak
+        fine = (us[i + 1] - us[i - 1]) / (2 * r)
+        us, lams, taken = run(compress(taken[:i - 1]) + [(2 * r, fine)], False)
+        step = fine
     i = int(np.argmax(lams))
     u3, l3 = us[i - 1:i + 2], lams[i - 1:i + 2]
     c = np.polyfit(u3, l3, 2)
