@@ -7,6 +7,8 @@ import jax as _jax
 if _os.environ.get("FINRAY_NO_AUTO_X64", "0") != "1":
     _jax.config.update("jax_enable_x64", True)
 
+from ._cantilever import CantileverSolution as CantileverSolution
+from ._cantilever import solve_cantilever as solve_cantilever
 from ._finger import Adaptor as Adaptor
 from ._finger import Crossbeams as Crossbeams
 from ._finger import DistributedLoad as DistributedLoad

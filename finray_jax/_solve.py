@@ -35,6 +35,8 @@ class SolverOptions(eqx.Module):
     initial_arc_step, min_arc_step, max_arc_step: pseudo-arc-length step sizes, in the
         coordinates where the initial tangent has equal load and shape parts.
     max_continuation_steps: bound on continuation steps (vmapped batches run in lock step).
+    min_tangent_cosine: a continuation step is retried at half length when the path's
+        tangent turns by more than arccos of this (guards against jumping over folds).
     """
 
     rtol: float = eqx.field(static=True, default=1e-10)
@@ -45,6 +47,7 @@ class SolverOptions(eqx.Module):
     min_arc_step: float = eqx.field(static=True, default=2e-4)
     max_arc_step: float = eqx.field(static=True, default=0.8)
     max_continuation_steps: int = eqx.field(static=True, default=120)
+    min_tangent_cosine: float = eqx.field(static=True, default=0.95)
 
     def __check_init__(self):
         for name in ("rtol", "atol", "initial_arc_step", "min_arc_step", "max_arc_step"):
@@ -142,8 +145,10 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions):
         z, ok, nit = _newton(_arc_fn, pred, (problem, s.y, s.lam, s.t, s.ds, w), opts)
         y1, lam1 = z
         t1 = _tangent(problem, y1, lam1, w, s.t)
-        folded = ok & (t1[-1] <= 0.0)
-        accept = ok & ~folded
+        # A step that turns the tangent sharply may have jumped across folds: retry shorter.
+        smooth = jnp.dot(t1, s.t) >= opts.min_tangent_cosine
+        folded = ok & smooth & (t1[-1] <= 0.0)
+        accept = ok & smooth & ~folded
         reached = accept & (lam1 >= target)
         grow = accept & (nit <= 4) & ~s.near_fold
         ds_new = jnp.where(accept, jnp.where(grow, jnp.minimum(1.6 * s.ds, opts.max_arc_step),

@@ -18,12 +18,17 @@ Model (see reference/ref_finger_A.md; units mm, N, MPa)
   uniaxialMaterial Elastic of stiffness k G A as 'Vy' (Timoshenko); k = 5/6 and k = 1 are
   computed, plus Euler-Bernoulli (no shear section) for information.
   (The corotational ElasticTimoshenkoBeam is NOT used: it ignores large-displacement
-  geometry.)  Large-displacement behaviour is verified by two cantilever checks (full-circle
-  curl under a tip moment 2 pi EI / L, and the elastica under a dead tip force).
+  geometry.)  Large-displacement behaviour is verified by two cantilever checks: the curl
+  under a tip moment (exact half circle at M = pi EI / L; the full circle at 2 pi EI / L is
+  out of reach because CorotCrdTransf2d measures chord rotations with atan2, i.e. only
+  within +-pi, and Newton fails just past the half circle) and the elastica under a dead
+  tip force P L^2 / EI = 2 (elliptic integrals and a shooting solution of the extensible,
+  shear-deformable rod).
 * Mesh: uniform elements of size h on the front beam (120/h elements, h divides 10 and 15);
   the back beam has the same number of elements (size 1.0541 h), so nodes fall at every
   crossbeam attachment b_i = 15 i * 126.4911/120; crossbeam i has round((40 - 5 i)/h)
-  elements.  Load points are nodes.
+  elements.  Load points are nodes.  Default sizes h = 2.5 .. 0.15625 (halving); the
+  finest gives the stored shapes, the others the convergence tables (error ~ h^2).
 * Loads are DEAD nodal loads in world coordinates (Plain pattern, Linear time series):
     L1: (+0.05, 0) at front node s = 60;  L2: (+1.5, 0) at front node s = 60;
     L3: uniform +x on the front beam over s in [75, 105], total 1 N, as nodal loads
