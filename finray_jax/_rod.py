@@ -41,6 +41,7 @@ class Integrator(eqx.Module):
     solver: dfx.AbstractSolver = dfx.Tsit5(scan_kind="lax")
     steps: int = eqx.field(static=True, default=10)
     backend: str = eqx.field(static=True, default="tableau")
+    unroll: int = eqx.field(static=True, default=1)
 
     def __check_init__(self):
         if not isinstance(self.steps, int) or self.steps < 1:
@@ -338,7 +339,7 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
             y1 = _rk_step(solver.tableau, f, yy, h)
             return y1, (y1 if save_all else None)
 
-        y_end, ys = lax.scan(rk, y, None, length=n)
+        y_end, ys = lax.scan(rk, y, None, length=n, unroll=integrator.unroll)
         if save_all:
             return jnp.concatenate([y[None], ys], axis=0)
         return y_end
@@ -371,20 +372,32 @@ def segment_flow(model, integrator, Y0, Q):
     return jax.vmap(lambda y, q: _integrate(model, integrator, y, q, False))(Y0, Q)
 
 
-@segment_flow.defjvp
 def _segment_flow_jvp(model, integrator, primals, tangents):
     Y0, Q = primals
     dY0, dQ = tangents
+    zero = jax.custom_derivatives.SymbolicZero
+    need_y, need_q = not isinstance(dY0, zero), not isinstance(dQ, zero)
+    argnums = tuple(i for i, need in ((0, need_y), (1, need_q)) if need)
 
     def one(y, q):
-        f = lambda yy, qq: _integrate(model, integrator, yy, qq, False)
         def twice(a, b):
-            o = f(a, b)
+            o = _integrate(model, integrator, a, b, False)
             return o, o
 
-        (Jy, Jq), out = jax.jacfwd(twice, argnums=(0, 1), has_aux=True)(y, q)
-        return out, Jy, Jq
+        jacs, out = jax.jacfwd(twice, argnums=argnums, has_aux=True)(y, q)
+        return out, jacs
 
-    out, Jy, Jq = jax.vmap(one)(Y0, Q)
-    dout = jnp.einsum("sij,sj->si", Jy, dY0) + jnp.einsum("sij,sj->si", Jq, dQ)
+    if not argnums:
+        out = segment_flow(model, integrator, Y0, Q)
+        return out, jnp.zeros_like(out)
+    out, jacs = jax.vmap(one)(Y0, Q)
+    jacs = list(jacs)
+    dout = jnp.zeros_like(out)
+    if need_y:
+        dout = dout + jnp.einsum("sij,sj->si", jacs.pop(0), dY0)
+    if need_q:
+        dout = dout + jnp.einsum("sij,sj->si", jacs.pop(0), dQ)
     return out, dout
+
+
+segment_flow.defjvp(_segment_flow_jvp, symbolic_zeros=True)

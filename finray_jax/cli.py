@@ -1,0 +1,359 @@
+"""The `finray` command line: solve, limit, validate and demo. See docs/cli.md.
+
+Exit codes: 0 converged (or limit found, or file valid), 1 user error (bad or missing
+file, bad option), 2 the load lies beyond the finger's limit load, 3 the solve failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+import finray_jax as fr
+
+from . import io as fio
+
+EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
+STATUS_EXIT = {"converged": EXIT_OK, "beyond_limit_load": EXIT_BEYOND, "failed": EXIT_FAILED}
+
+# The default finger of `finray demo`: identical to examples/finger1.toml (a test checks).
+DEMO_FINGER_TOML = """\
+# Finger-1: a 120 mm fin-ray finger approximating "Finger-1" of Sheikh Sofla et al. (2025),
+# under the load of the paper's Fig. 3: 4 N in +x spread uniformly over the front beam
+# between crossbeams 5 and 7 (arc lengths l5 = 75 mm to l7 = 105 mm).
+#
+# ASSUMED DIMENSIONS: the paper's exact dimensions are not available to us. This is
+# ref-A's outline (120 mm front beam, 40 mm base width, 7 horizontal crossbeams every
+# 15 mm) with thicker bands, printed in a NinjaFlex-like TPU (E = 12 MPa, nu = 0.45):
+# front and back beams 3.0 mm, crossbeams 2.0 mm, depth 20 mm. Its limit (fold) load
+# factor under this load is about 2.25 (about 9 N), so 4 N is well inside.
+# Units: mm, N, MPa. Points are (x, z); y is the depth direction.
+
+[meta]
+name = "Finger-1"
+description = "120 mm finger (assumed dimensions), 4 N over l5..l7 as in the paper's Fig. 3."
+
+[material]
+E = 12.0                  # MPa, NinjaFlex-like TPU
+nu = 0.45
+
+[front]
+base = [0.0, 0.0]         # mm
+tip = [0.0, 120.0]        # mm
+thickness = 3.0           # mm
+depth = 20.0              # mm
+
+[back]
+base = [40.0, 0.0]        # mm
+thickness = 3.0
+depth = 20.0
+
+[adaptor]
+front_base = "clamped"
+back_base = "clamped"
+
+[crossbeam_pattern]       # 7 horizontal crossbeams at front-beam arc lengths 15, 30, ..., 105
+count = 7
+front_s = [15.0, 105.0]   # mm, first and last
+horizontal = true
+thickness = 2.0           # mm
+depth = 20.0              # mm
+
+[[loads]]                 # Fig. 3: 4 N horizontal over l5..l7
+kind = "distributed"
+beam = "front"
+s_range = [75.0, 105.0]   # mm
+total_force = [4.0, 0.0, 0.0]   # N, resultant
+"""
+DEMO_SOURCE = "<finray demo: examples/finger1.toml>"
+
+
+class UserError(Exception):
+    """A mistake in the command line or its inputs: reported in one line, exit code 1."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise UserError(f"{message}\n{self.format_usage().strip()}")
+
+
+# --------------------------------------------------------------------------------------
+# Set-up
+# --------------------------------------------------------------------------------------
+
+
+def enable_compilation_cache() -> str | None:
+    """Turn on JAX's persistent compilation cache (CLI only, never the library).
+
+    Directory: $FINRAY_CACHE_DIR, else ~/.cache/finray_jax/jax. FINRAY_NO_CACHE=1 disables
+    it. Returns the directory, or None when disabled.
+    """
+    if os.environ.get("FINRAY_NO_CACHE", "0").strip() not in ("", "0"):
+        return None
+    import jax
+
+    path = os.environ.get("FINRAY_CACHE_DIR") or os.path.expanduser("~/.cache/finray_jax/jax")
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    return path
+
+
+def _finite_float(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return x
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="finray",
+        description="Cosserat-rod simulator of fin-ray-effect gripper fingers (units: mm, N, "
+        "MPa). Finger files are TOML: see docs/finger-format.md.",
+    )
+    p.add_argument("--version", action="version", version=f"finray_jax {fr.__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    s = sub.add_parser("solve", help="solve a finger file for its equilibrium",
+                       description="Solve a finger file. Exit code 0 converged, 2 beyond the "
+                       "limit load, 3 failed, 1 user error.")
+    s.add_argument("finger", metavar="FINGER.toml")
+    s.add_argument("--out", metavar="RESULT.json", help="write the solution as JSON")
+    s.add_argument("--plot", metavar="SHAPE.png", help="save a figure (shape and n(s), m(s))")
+    s.add_argument("--load-scale", type=_finite_float, default=None, metavar="X",
+                   help="multiply every load by X")
+    s.add_argument("--mode", choices=fio.MODES, default=None,
+                   help="override [solver] mode (default: the file's, else auto)")
+
+    lim = sub.add_parser("limit", help="find the limit (fold) load factor",
+                         description="Trace the loading branch to its fold: the largest factor "
+                         "on the file's loads with an equilibrium. Exit 0 found, 3 not found.")
+    lim.add_argument("finger", metavar="FINGER.toml")
+    lim.add_argument("--out", metavar="LIMIT.json", help="write the result as JSON")
+    lim.add_argument("--plot", metavar="SHAPE.png", help="save a figure of the limit state")
+    lim.add_argument("--mode", choices=fio.MODES, default=None)
+
+    v = sub.add_parser("validate", help="check a finger file",
+                       description="Check a finger file; print OK or the error (exit 1).")
+    v.add_argument("finger", metavar="FINGER.toml")
+
+    d = sub.add_parser("demo", help="solve the default finger under the paper's Fig. 3 load",
+                       description="Solve Finger-1 (examples/finger1.toml) under 4 N in +x "
+                       "spread over l5..l7; write DIR/demo.png and DIR/demo.json.")
+    d.add_argument("--out", metavar="DIR", default=".",
+                   help="output directory (default: the current directory)")
+    return p
+
+
+# --------------------------------------------------------------------------------------
+# Printing
+# --------------------------------------------------------------------------------------
+
+
+def _f(x, digits=4) -> str:
+    x = float(x)
+    if not math.isfinite(x):
+        return "nan"
+    return f"{x:.{digits}g}"
+
+
+def _summary(sol, finger, settings, source: str, elapsed: float | None = None) -> str:
+    lines = []
+    name = f"{settings.name} ({source})" if settings.name else source
+    lines.append(f"finger: {name}; {finger.n_crossbeams} crossbeams; mode {sol.mode}")
+    timing = f", {elapsed:.1f} s" if elapsed is not None else ""
+    lines.append(
+        f"status: {sol.status} (load factor {_f(sol.load_factor, 6)}, {int(sol.iterations)} "
+        f"Newton iterations, max residual {_f(sol.max_residual, 2)}{timing})"
+    )
+    if sol.status == "beyond_limit_load":
+        lines.append(
+            "  the load lies beyond the finger's limit (fold) load; the state below is the "
+            f"equilibrium at the fold, load factor {_f(sol.load_factor, 6)}"
+        )
+    elif sol.status == "failed":
+        lines.append(f"  {fr.RESULTS[sol.result]}")
+    d = np.asarray(sol.tip.displacement, dtype=np.float64)
+    rot = np.asarray(sol.tip.rotation, dtype=np.float64)
+    lines.append(
+        f"tip displacement: dx = {_f(d[0])} mm, dy = {_f(d[1])} mm, dz = {_f(d[2])} mm; "
+        f"rotation about y = {_f(np.degrees(rot[1]))} deg"
+    )
+    lines.append("reactions (wrench the adaptor applies at each base; moment about the base):")
+    spatial = sol.mode == "spatial"
+    head = ["beam", "Fx (N)", "Fz (N)", "My (N mm)"]
+    if spatial:
+        head = ["beam", "Fx (N)", "Fy (N)", "Fz (N)", "Mx (N mm)", "My (N mm)", "Mz (N mm)"]
+    rows = []
+    for beam, r in (("front", sol.reactions_front), ("back", sol.reactions_back)):
+        F, M = np.asarray(r.force, dtype=np.float64), np.asarray(r.moment, dtype=np.float64)
+        vals = [*F, *M] if spatial else [F[0], F[2], M[1]]
+        rows.append([beam] + [_f(x) for x in vals])
+    lines += _table(head, rows)
+    return "\n".join(lines)
+
+
+def _table(head, rows) -> list[str]:
+    widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
+    fmt = lambda r: "  " + "  ".join(
+        str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths))
+    )
+    return [fmt(head)] + [fmt(r) for r in rows]
+
+
+def _crossbeam_table(sol, finger) -> list[str]:
+    """Per crossbeam: attachment points, axial force (+ tension) and the largest |m_y|."""
+    if finger.n_crossbeams == 0:
+        return []
+    head = ["crossbeam", "front_s (mm)", "back_s (mm)", "axial n.d3 (N)", "max |m_y| (N mm)"]
+    rows = []
+    cb = finger.crossbeams
+    for i in range(finger.n_crossbeams):
+        b = sol.crossbeam(i)
+        R = np.asarray(b.frame, dtype=np.float64)
+        n = np.asarray(b.force, dtype=np.float64)
+        axial = np.einsum("ni,ni->n", n, R[:, :, 2])
+        mid = len(axial) // 2
+        my = np.max(np.abs(np.asarray(b.moment, dtype=np.float64)[:, 1]))
+        rows.append([str(i), _f(cb.front_s[i]), _f(cb.back_s[i]), _f(axial[mid]), _f(my)])
+    return ["crossbeams (numbered from 0; axial force at mid-length, + = tension):",
+            *_table(head, rows)]
+
+
+# --------------------------------------------------------------------------------------
+# Commands
+# --------------------------------------------------------------------------------------
+
+
+def _solve(finger, settings, mode):
+    kwargs = settings.solve_kwargs()
+    if mode is not None:
+        kwargs["mode"] = mode
+    t0 = time.perf_counter()
+    sol = fr.solve_finger(finger, **kwargs)
+    sol.max_residual.block_until_ready()
+    return sol, time.perf_counter() - t0
+
+
+def _cmd_solve(args) -> int:
+    finger, settings = fio.load_finger(args.finger)
+    if args.load_scale is not None:
+        finger = finger.scale_loads(args.load_scale)
+    sol, elapsed = _solve(finger, settings, args.mode)
+    print(_summary(sol, finger, settings, args.finger, elapsed))
+    if args.out:
+        fio.write_json(args.out, fio.solution_to_dict(sol, finger, settings=settings))
+        print(f"wrote {args.out}")
+    if args.plot:
+        from .plot import save_solution_figure
+
+        save_solution_figure(sol, finger, args.plot, title=settings.name or args.finger)
+        print(f"wrote {args.plot}")
+    return STATUS_EXIT[sol.status]
+
+
+def _cmd_limit(args) -> int:
+    finger, settings = fio.load_finger(args.finger)
+    if not finger.loads:
+        raise UserError(f"{args.finger}: no [[loads]]: the limit load is a factor on the loads")
+    kwargs = settings.solve_kwargs()
+    if args.mode is not None:
+        kwargs["mode"] = args.mode
+    t0 = time.perf_counter()
+    lim = fr.limit_load(finger, **kwargs)
+    factor = float(lim.load_factor)
+    elapsed = time.perf_counter() - t0
+    found = bool(lim.found)
+    name = f"{settings.name} ({args.finger})" if settings.name else args.finger
+    print(f"finger: {name}; mode {lim.solution.mode}")
+    if found:
+        print(f"limit load factor: {_f(factor, 6)} ({elapsed:.1f} s)")
+    else:
+        print(f"no limit load found: continuation stopped at load factor {_f(factor, 6)} "
+              f"without a fold ({elapsed:.1f} s). {fr.RESULTS[lim.solution.result]}")
+    for j, load in enumerate(finger.loads):
+        if isinstance(load, fr.PointLoad):
+            F = np.asarray(load.force) * factor
+            what = f"point load at s = {_f(load.s)} mm"
+        else:
+            F = np.asarray(load.total_force) * factor
+            s0, s1 = np.asarray(load.s_range)
+            what = f"distributed load over s = {_f(s0)}..{_f(s1)} mm, total"
+        beam = {0: "front", 1: "back"}.get(load.beam, f"crossbeam {load.beam - 2}")
+        print(f"  loads[{j}] ({beam} beam, {what}) at the limit: "
+              f"({_f(F[0])}, {_f(F[1])}, {_f(F[2])}) N")
+    sol = lim.solution
+    d = np.asarray(sol.tip.displacement, dtype=np.float64)
+    print(f"equilibrium there: tip dx = {_f(d[0])} mm, dz = {_f(d[2])} mm, rotation about y = "
+          f"{_f(np.degrees(float(sol.tip.rotation[1])))} deg")
+    if args.out:
+        fio.write_json(args.out, fio.limit_to_dict(lim, finger, settings=settings))
+        print(f"wrote {args.out}")
+    if args.plot:
+        from .plot import save_solution_figure
+
+        save_solution_figure(sol, finger.scale_loads(factor), args.plot,
+                             title=f"{settings.name or args.finger} at the limit load")
+        print(f"wrote {args.plot}")
+    return EXIT_OK if found else EXIT_FAILED
+
+
+def _cmd_validate(args) -> int:
+    finger, settings = fio.load_finger(args.finger)
+    name = f" ({settings.name})" if settings.name else ""
+    print(f"{args.finger}{name}: OK: {finger.n_crossbeams} crossbeams, {len(finger.loads)} "
+          f"loads, mode {settings.mode}")
+    return EXIT_OK
+
+
+def _cmd_demo(args) -> int:
+    finger, settings = fio.loads_finger(DEMO_FINGER_TOML, source=DEMO_SOURCE)
+    print("finray demo: Finger-1 under the paper's Fig. 3 load, 4 N in +x spread over the "
+          "front beam from l5 = 75 mm to l7 = 105 mm")
+    sol, elapsed = _solve(finger, settings, None)
+    print(_summary(sol, finger, settings, "examples/finger1.toml", elapsed))
+    print("\n".join(_crossbeam_table(sol, finger)))
+    out = args.out
+    png, js = os.path.join(out, "demo.png"), os.path.join(out, "demo.json")
+    fio.write_json(js, fio.solution_to_dict(sol, finger, settings=settings))
+    from .plot import save_solution_figure
+
+    save_solution_figure(sol, finger, png, title="Finger-1, 4 N over l5..l7")
+    print(f"wrote {png}\nwrote {js}")
+    return STATUS_EXIT[sol.status]
+
+
+COMMANDS = {"solve": _cmd_solve, "limit": _cmd_limit, "validate": _cmd_validate,
+            "demo": _cmd_demo}
+
+
+def main(argv=None) -> int:
+    """Entry point of the `finray` console script. Returns the exit code."""
+    parser = _parser()
+    try:
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as e:  # --help, --version
+            return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USER
+        if args.command != "validate":
+            enable_compilation_cache()
+        return COMMANDS[args.command](args)
+    except (UserError, fio.FingerFileError, fr.FingerError) as e:
+        print(f"finray: error: {e}", file=sys.stderr)
+        return EXIT_USER
+    except OSError as e:  # e.g. an output path that cannot be written
+        where = f": {e.filename}" if getattr(e, "filename", None) else ""
+        print(f"finray: error: {e.strerror or e}{where}", file=sys.stderr)
+        return EXIT_USER
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,284 @@
+"""The `finray` command line, run in-process through `cli.main`.
+
+Solves are expensive to compile (20-40 s), so the default tests solve only ref-A under L1
+(the topology other tests in the process share): once as filed and once scaled far beyond
+its limit load. `demo` and `limit` compile other programs and are marked slow.
+"""
+
+import contextlib
+import io
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+import finray_jax as fr
+from finray_jax import cli
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+REF_A = str(ROOT / "examples" / "ref_a.toml")
+
+SOLUTION_KEYS = {
+    "finray_jax_version", "units", "mode", "status", "load_factor", "iterations",
+    "max_residual", "tip", "reactions", "beams", "crossbeam_wrenches",
+}
+
+
+@pytest.fixture(autouse=True)
+def _no_persistent_cache(monkeypatch):
+    # The CLI turns on JAX's persistent cache; keep the test process's JAX config alone.
+    monkeypatch.setenv("FINRAY_NO_CACHE", "1")
+
+
+def run(argv):
+    """cli.main(argv) with stdout and stderr captured: (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def ref_a_solved(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("solve")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FINRAY_NO_CACHE", "1")
+        code, out, err = run(["solve", REF_A, "--out", str(tmp / "result.json"),
+                              "--plot", str(tmp / "shape.png")])
+    data = json.loads((tmp / "result.json").read_text())
+    return code, out, err, data, tmp
+
+
+@pytest.fixture(scope="module")
+def ref_a_reference():
+    return fr.solve_finger(fr.ref_finger_a("L1"))
+
+
+# --------------------------------------------------------------------------------------
+# solve
+# --------------------------------------------------------------------------------------
+
+
+def test_solve_exit_code_and_summary(ref_a_solved):
+    code, out, err, data, _ = ref_a_solved
+    assert code == 0, err
+    assert err == ""
+    assert "status: converged" in out
+    assert "tip displacement" in out and "reactions" in out
+
+
+def test_solve_json_keys(ref_a_solved):
+    _, _, _, data, _ = ref_a_solved
+    assert SOLUTION_KEYS <= set(data)
+    assert data["status"] == "converged" and data["converged"] is True
+    assert data["mode"] == "planar"
+    assert data["finray_jax_version"] == fr.__version__
+    assert data["units"]["length"] == "mm" and data["units"]["force"] == "N"
+    assert data["load_factor"] == 1.0
+    assert set(data["tip"]) >= {"position", "displacement", "rotation"}
+    for beam in ("front", "back"):
+        assert set(data["reactions"][beam]) == {"force", "moment"}
+    beams = data["beams"]
+    assert len(beams["crossbeams"]) == 7
+    for b in [beams["front"], beams["back"], *beams["crossbeams"]]:
+        n = len(b["s"])
+        assert n > 2
+        for key in ("position", "force", "moment"):
+            assert np.shape(b[key]) == (n, 3)
+    for key in ("front_force", "front_moment", "back_force", "back_moment"):
+        assert np.shape(data["crossbeam_wrenches"][key]) == (7, 3)
+
+
+def test_solve_json_matches_library(ref_a_solved, ref_a_reference):
+    """The CLI's answer is the library's answer for the same finger."""
+    _, _, _, data, _ = ref_a_solved
+    sol = ref_a_reference
+    assert sol.status == "converged"
+    # Same finger, same compiled program: equal up to round-off.
+    tol = dict(rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(data["tip"]["displacement"], sol.tip.displacement, **tol)
+    np.testing.assert_allclose(data["tip"]["rotation"], sol.tip.rotation, **tol)
+    np.testing.assert_allclose(data["reactions"]["front"]["force"],
+                               sol.reactions_front.force, **tol)
+    np.testing.assert_allclose(data["reactions"]["back"]["moment"],
+                               sol.reactions_back.moment, **tol)
+    np.testing.assert_allclose(data["beams"]["front"]["position"], sol.front.position, **tol)
+    np.testing.assert_allclose(data["beams"]["crossbeams"][3]["force"],
+                               sol.crossbeam(3).force, **tol)
+    assert data["iterations"] == int(sol.iterations)
+
+
+def test_solve_plot_written(ref_a_solved):
+    *_, tmp = ref_a_solved
+    png = (tmp / "shape.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_solve_beyond_limit_load(tmp_path):
+    """50 x L1 = 2.5 N at s = 60: beyond ref-A's fold (a little under 2 N)."""
+    path = tmp_path / "beyond.json"
+    code, out, err = run(["solve", REF_A, "--load-scale", "50", "--out", str(path)])
+    assert code == 2, out + err
+    assert "beyond_limit_load" in out
+    data = json.loads(path.read_text())
+    assert data["status"] == "beyond_limit_load"
+    assert data["converged"] is False
+    # the equilibrium reported is at the fold: 1.5 N .. 2 N of the scaled 2.5 N
+    assert 0.6 < data["load_factor"] < 0.8
+    np.testing.assert_allclose(data["loads"][0]["force"], [2.5, 0.0, 0.0], rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# validate and user errors (no solves)
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["ref_a", "finger1", "finger2"])
+def test_validate_examples(name):
+    code, out, err = run(["validate", str(ROOT / "examples" / f"{name}.toml")])
+    assert code == 0, err
+    assert "OK" in out and err == ""
+
+
+def _bad_file(tmp_path):
+    text = (ROOT / "examples" / "ref_a.toml").read_text()
+    text = text.replace("front_s = 45.0\nback_s = 47.43416490252569\nthickness = 1.0",
+                        "front_s = 45.0\nback_s = 47.43416490252569\nthickness = -1.0")
+    assert "thickness = -1.0" in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    return path
+
+
+def test_validate_bad_file(tmp_path, capsys):
+    path = _bad_file(tmp_path)
+    code = cli.main(["validate", str(path)])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert captured.out == ""
+    assert captured.err.startswith("finray: error: ")
+    assert str(path) in captured.err
+    assert "crossbeams[2].thickness = -1.0" in captured.err
+    assert "Traceback" not in captured.err
+    assert captured.err.count("\n") == 1
+
+
+def test_solve_bad_file(tmp_path, capsys):
+    path = _bad_file(tmp_path)
+    code = cli.main(["solve", str(path), "--out", str(tmp_path / "r.json")])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "crossbeams[2].thickness = -1.0" in captured.err
+    assert "Traceback" not in captured.err
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_unknown_key_in_file(tmp_path, capsys):
+    path = tmp_path / "typo.toml"
+    path.write_text((ROOT / "examples" / "ref_a.toml").read_text().replace("nu = ", "nuu = "))
+    assert cli.main(["validate", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert "material.nuu = 0.45" in err and "did you mean 'nu'" in err
+
+
+def test_missing_file(tmp_path, capsys):
+    code = cli.main(["solve", str(tmp_path / "nope.toml")])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err.startswith("finray: error: ") and "nope.toml" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [[], ["frobnicate"], ["solve"], ["solve", REF_A, "--mode", "3d"],
+     ["solve", REF_A, "--load-scale", "abc"], ["solve", REF_A, "--load-scale", "nan"]],
+)
+def test_usage_errors(argv, capsys):
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    assert code == 1
+    assert err.startswith("finray: error: ")
+    assert "Traceback" not in err
+
+
+def test_help_and_version(capsys):
+    assert cli.main(["--help"]) == 0
+    assert "solve" in capsys.readouterr().out
+    assert cli.main(["--version"]) == 0
+    assert fr.__version__ in capsys.readouterr().out
+
+
+def test_console_entry_point_in_a_subprocess(tmp_path):
+    """A real process: exit code 1 and one line on stderr, no traceback."""
+    path = _bad_file(tmp_path)
+    env = dict(os.environ, FINRAY_NO_CACHE="1")
+    proc = subprocess.run([sys.executable, "-m", "finray_jax.cli", "validate", str(path)],
+                          capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 1
+    assert proc.stderr.startswith("finray: error: ")
+    assert "crossbeams[2].thickness = -1.0" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_compilation_cache_settings(monkeypatch, tmp_path):
+    old_dir = jax.config.jax_compilation_cache_dir
+    old_min = jax.config.jax_persistent_cache_min_compile_time_secs
+    try:
+        monkeypatch.setenv("FINRAY_NO_CACHE", "1")
+        assert cli.enable_compilation_cache() is None
+        monkeypatch.setenv("FINRAY_NO_CACHE", "0")
+        monkeypatch.setenv("FINRAY_CACHE_DIR", str(tmp_path / "cache"))
+        assert cli.enable_compilation_cache() == str(tmp_path / "cache")
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")
+        assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.5
+        monkeypatch.delenv("FINRAY_CACHE_DIR")
+        expected = os.path.expanduser("~/.cache/finray_jax/jax")
+        assert cli.enable_compilation_cache() == expected
+    finally:
+        jax.config.update("jax_compilation_cache_dir", old_dir)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", old_min)
+
+
+# --------------------------------------------------------------------------------------
+# demo and limit (compile other programs: slow)
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_demo(tmp_path):
+    code, out, err = run(["demo", "--out", str(tmp_path)])
+    assert code == 0, out + err
+    assert "status: converged" in out and "crossbeams (numbered from 0" in out
+    data = json.loads((tmp_path / "demo.json").read_text())
+    assert SOLUTION_KEYS <= set(data)
+    assert data["status"] == "converged" and data["name"] == "Finger-1"
+    np.testing.assert_allclose(data["loads"][0]["total_force"], [4.0, 0.0, 0.0])
+    assert data["loads"][0]["s_range"] == [75.0, 105.0]
+    # the load pushes the front beam toward the back beam
+    assert data["tip"]["displacement"][0] > 0
+    # global force balance: the reactions carry the 4 N
+    fx = data["reactions"]["front"]["force"][0] + data["reactions"]["back"]["force"][0]
+    np.testing.assert_allclose(fx, -4.0, rtol=1e-8)
+    assert (tmp_path / "demo.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.slow
+def test_limit_ref_a(tmp_path):
+    path = tmp_path / "limit.json"
+    code, out, err = run(["limit", REF_A, "--out", str(path)])
+    assert code == 0, out + err
+    data = json.loads(path.read_text())
+    assert data["found"] is True
+    # ref-A folds a little under 2 N under a point force at s = 60 (L1 is 0.05 N)
+    assert 30.0 < data["limit_load_factor"] < 40.0
+    np.testing.assert_allclose(data["limit_loads"][0]["force"][0],
+                               0.05 * data["limit_load_factor"], rtol=1e-12)
+    assert {"tip", "reactions"} <= set(data["equilibrium_at_limit"])
+    assert data["solution"]["status"] == "converged"
+    assert "limit load factor" in out

@@ -1,0 +1,355 @@
+"""Eager validation: every rule of validate_finger (and of the option objects) raises a
+ValueError that names the field and the offending value, before anything is compiled."""
+
+import dataclasses
+import re
+
+import equinox as eqx
+import numpy as np
+import pytest
+
+import finray_jax as fr
+
+
+@pytest.fixture(scope="module")
+def finger():
+    return fr.ref_finger_a("L1")
+
+
+def _raises(finger, *fragments, func=fr.validate_finger):
+    """validate_finger(finger) raises a FingerError whose message holds every fragment."""
+    with pytest.raises(fr.FingerError) as info:
+        func(finger)
+    msg = str(info.value)
+    for frag in fragments:
+        assert frag in msg, f"{frag!r} not in {msg!r}"
+    return msg
+
+
+def _material(finger, **kw):
+    m = finger.material
+    args = dict(E=m.E, nu=m.nu, shear_coefficient=m.shear_coefficient) | kw
+    return eqx.tree_at(lambda f: f.material, finger, fr.Material(**args))
+
+
+def _crossbeams(finger, **kw):
+    cb = finger.crossbeams
+    args = dict(front_s=cb.front_s, back_s=cb.back_s, thickness=cb.thickness, depth=cb.depth)
+    return eqx.tree_at(lambda f: f.crossbeams, finger, fr.Crossbeams(**(args | kw)))
+
+
+def _adaptor(finger, **kw):
+    return eqx.tree_at(lambda f: f.adaptor, finger, fr.Adaptor(**kw))
+
+
+def test_reference_finger_is_valid(finger):
+    for load in ("none", "L1", "L2", "L3"):
+        fr.validate_finger(fr.ref_finger_a(load))
+    assert issubclass(fr.FingerError, ValueError)
+
+
+def test_ref_finger_a_rejects_unknown_load_case():
+    with pytest.raises(ValueError, match="L4"):
+        fr.ref_finger_a("L4")
+
+
+# --- material -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("E", [0.0, -12.0])
+def test_non_positive_E(finger, E):
+    _raises(_material(finger, E=E), "material.E", repr(E))
+
+
+@pytest.mark.parametrize("nu", [0.5, 0.7, -1.0, -1.5])
+def test_nu_out_of_range(finger, nu):
+    _raises(_material(finger, nu=nu), "material.nu", repr(nu))
+
+
+def test_nu_in_range_is_accepted(finger):
+    for nu in (-0.99, 0.0, 0.499):
+        fr.validate_finger(_material(finger, nu=nu))
+
+
+@pytest.mark.parametrize("k", [0.0, -0.5])
+def test_non_positive_shear_coefficient(finger, k):
+    _raises(_material(finger, shear_coefficient=k), "material.shear_coefficient", repr(k))
+
+
+# --- NaN / inf anywhere ---------------------------------------------------------------
+
+
+NAN_CASES = {
+    "material.E": lambda f: _material(f, E=np.nan),
+    "material.nu": lambda f: _material(f, nu=np.nan),
+    "material.shear_coefficient": lambda f: _material(f, shear_coefficient=np.inf),
+    "front_base": lambda f: eqx.tree_at(lambda g: g.front_base, f, np.array([np.nan, 0.0])),
+    "back_base": lambda f: eqx.tree_at(lambda g: g.back_base, f, np.array([40.0, np.nan])),
+    "tip": lambda f: eqx.tree_at(lambda g: g.tip, f, np.array([np.inf, 120.0])),
+    "front.thickness": lambda f: eqx.tree_at(lambda g: g.front, f, fr.Section(np.nan, 20.0)),
+    "back.depth": lambda f: eqx.tree_at(lambda g: g.back, f, fr.Section(1.5, np.nan)),
+    "crossbeams.front_s": lambda f: _crossbeams(
+        f, front_s=np.where(np.arange(7) == 3, np.nan, np.asarray(f.crossbeams.front_s))),
+    "crossbeams.back_s": lambda f: _crossbeams(
+        f, back_s=np.where(np.arange(7) == 0, np.nan, np.asarray(f.crossbeams.back_s))),
+    "crossbeams.thickness": lambda f: _crossbeams(f, thickness=np.full(7, np.nan)),
+    "crossbeams.depth": lambda f: _crossbeams(f, depth=np.full(7, np.nan)),
+    "adaptor.back_clamp_length": lambda f: _adaptor(f, back_clamp_length=np.nan),
+    "loads[0].s": lambda f: f.with_loads(fr.PointLoad(0, np.nan, (0.05, 0.0, 0.0))),
+    "loads[0].force": lambda f: f.with_loads(fr.PointLoad(0, 60.0, (np.nan, 0.0, 0.0))),
+    "loads[0].moment": lambda f: f.with_loads(
+        fr.PointLoad(0, 60.0, (0.05, 0.0, 0.0), (0.0, np.inf, 0.0))),
+    "loads[1].s_range": lambda f: f.with_loads(
+        f.loads[0], fr.DistributedLoad(0, (np.nan, 80.0), (1.0, 0.0, 0.0))),
+    "loads[0].total_force": lambda f: f.with_loads(
+        fr.DistributedLoad(0, (70.0, 80.0), (1.0, np.nan, 0.0))),
+}
+
+
+@pytest.mark.parametrize("field", list(NAN_CASES))
+def test_non_finite_values(finger, field):
+    msg = _raises(NAN_CASES[field](finger), field, "finite")
+    assert re.search(r"nan|inf", msg), msg
+
+
+# --- geometry --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("beam", ["front", "back"])
+@pytest.mark.parametrize("which", ["thickness", "depth"])
+@pytest.mark.parametrize("value", [0.0, -1.5])
+def test_non_positive_section(finger, beam, which, value):
+    sec = dict(thickness=1.5, depth=20.0) | {which: value}
+    bad = eqx.tree_at(lambda f: getattr(f, beam), finger, fr.Section(**sec))
+    _raises(bad, f"{beam}.{which}", repr(value))
+
+
+@pytest.mark.parametrize("which", ["thickness", "depth"])
+def test_non_positive_crossbeam_section(finger, which):
+    values = np.asarray(getattr(finger.crossbeams, which)).copy()
+    values[4] = -0.25
+    _raises(_crossbeams(finger, **{which: values}), f"crossbeams.{which}", "-0.25")
+
+
+@pytest.mark.parametrize("name", ["front_base", "back_base", "tip"])
+def test_point_with_wrong_shape(finger, name):
+    bad = eqx.tree_at(lambda f: getattr(f, name), finger, np.array([1.0, 2.0, 3.0]))
+    _raises(bad, name, "[1.0, 2.0, 3.0]")
+
+
+def test_zero_length_beams(finger):
+    _raises(eqx.tree_at(lambda f: f.front_base, finger, np.array([0.0, 120.0])), "front",
+            "zero length")
+    _raises(eqx.tree_at(lambda f: f.back_base, finger, np.array([0.0, 120.0])), "back",
+            "zero length")
+
+
+def test_coincident_bases(finger):
+    _raises(eqx.tree_at(lambda f: f.back_base, finger, np.array([0.0, 0.0])),
+            "front_base", "back_base")
+
+
+def test_unknown_torsion(finger):
+    _raises(dataclasses.replace(finger, torsion="circle"), "torsion", "'circle'")
+
+
+@pytest.mark.parametrize("s", [0.0, -5.0, 120.0, 130.0])
+def test_crossbeam_front_attachment_outside_front_beam(finger, s):
+    fs = np.asarray(finger.crossbeams.front_s).copy()
+    i = 0 if s <= 0 else 6
+    fs[i] = s
+    _raises(_crossbeams(finger, front_s=fs), f"crossbeams[{i}].front_s", repr(s), "front beam")
+
+
+@pytest.mark.parametrize("s", [0.0, -1.0, float(np.hypot(40.0, 120.0)), 200.0])
+def test_crossbeam_back_attachment_outside_back_beam(finger, s):
+    bs = np.asarray(finger.crossbeams.back_s).copy()
+    i = 0 if s <= 0 else 6
+    bs[i] = s
+    _raises(_crossbeams(finger, back_s=bs), f"crossbeams[{i}].back_s", repr(s), "back beam")
+
+
+def test_crossing_crossbeams(finger):
+    bs = np.asarray(finger.crossbeams.back_s).copy()
+    bs[2], bs[3] = bs[3], bs[2]  # crossbeams 2 and 3 now cross
+    _raises(_crossbeams(finger, back_s=bs), "crossbeams 2 and 3", "cross")
+
+
+def test_crossbeams_sharing_a_front_point(finger):
+    fs = np.asarray(finger.crossbeams.front_s).copy()
+    fs[1] = fs[0]
+    _raises(_crossbeams(finger, front_s=fs), "crossbeams 0 and 1", repr(float(fs[0])))
+
+
+def test_crossbeams_listed_tip_to_base(finger):
+    cb = finger.crossbeams
+    rev = {k: np.asarray(getattr(cb, k))[::-1] for k in ("front_s", "back_s", "thickness",
+                                                        "depth")}
+    _raises(_crossbeams(finger, **rev), "base to tip", "crossbeams[1].front_s")
+
+
+def test_zero_length_crossbeam():
+    # Collinear main beams: the back beam runs through the front beam, so a crossbeam can
+    # join two coincident points.
+    f = fr.Finger(
+        material=fr.Material(12.0, 0.45), front_base=(0.0, 0.0), back_base=(0.0, -10.0),
+        tip=(0.0, 120.0), front=fr.Section(1.5, 20.0), back=fr.Section(1.5, 20.0),
+        crossbeams=fr.Crossbeams([10.0], [20.0], [1.0], [20.0]),
+    )
+    _raises(f, "crossbeam", "zero length")
+
+
+@pytest.mark.parametrize(
+    "field,value",
+    [("front_s", np.zeros((7, 1)) + 15.0), ("thickness", np.ones(6)), ("depth", np.float64(20.0))],
+)
+def test_crossbeam_arrays_with_wrong_shapes(finger, field, value):
+    _raises(_crossbeams(finger, **{field: value}), "crossbeam arrays", "shapes", field)
+
+
+# --- adaptor -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("field", ["front_base", "back_base"])
+def test_unknown_base_kind(finger, field):
+    _raises(_adaptor(finger, **{field: "welded"}), f"adaptor.{field}", "'welded'")
+
+
+@pytest.mark.parametrize("beam", ["front", "back"])
+@pytest.mark.parametrize("kind", ["pinned", "free"])
+def test_clamp_length_needs_clamped_base(finger, beam, kind):
+    bad = _adaptor(finger, **{f"{beam}_base": kind, f"{beam}_clamp_length": 12.5})
+    _raises(bad, f"adaptor.{beam}_clamp_length", "12.5", f"'{kind}'")
+
+
+@pytest.mark.parametrize("beam,value", [("front", -1.0), ("front", 120.0), ("back", 130.0)])
+def test_clamp_length_out_of_range(finger, beam, value):
+    _raises(_adaptor(finger, **{f"{beam}_clamp_length": value}),
+            f"adaptor.{beam}_clamp_length", repr(value))
+
+
+def test_clamp_length_in_range_is_accepted(finger):
+    fr.validate_finger(_adaptor(finger, front_clamp_length=0.0, back_clamp_length=40.0))
+
+
+# --- loads ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("beam", [9, -1, 100])
+def test_load_on_no_beam(finger, beam):
+    bad = finger.with_loads(fr.PointLoad(beam, 10.0, (0.05, 0.0, 0.0)))
+    _raises(bad, "loads[0].beam", repr(beam))
+
+
+def test_load_beam_must_be_an_int(finger):
+    bad = finger.with_loads(fr.PointLoad(1.0, 10.0, (0.05, 0.0, 0.0)))
+    _raises(bad, "loads[0].beam", "1.0")
+
+
+@pytest.mark.parametrize("beam,s", [(0, 0.0), (0, -3.0), (0, 120.5), (1, 127.0), (2, 36.0)])
+def test_point_load_outside_its_beam(finger, beam, s):
+    # crossbeam 0 (beam 2) is 40 (1 - 15/120) = 35 mm long.
+    bad = finger.with_loads(finger.loads[0], fr.PointLoad(beam, s, (0.05, 0.0, 0.0)))
+    _raises(bad, "loads[1].s", repr(s))
+
+
+def test_point_load_at_the_tip_is_accepted(finger):
+    fr.validate_finger(finger.with_loads(fr.PointLoad(0, 120.0, (0.05, 0.0, 0.0))))
+
+
+@pytest.mark.parametrize("s_range", [(105.0, 75.0), (80.0, 80.0), (-1.0, 30.0), (100.0, 121.0)])
+def test_distributed_load_range(finger, s_range):
+    bad = finger.with_loads(fr.DistributedLoad(0, s_range, (1.0, 0.0, 0.0)))
+    _raises(bad, "loads[0].s_range", f"[{s_range[0]}, {s_range[1]}]")
+
+
+def test_unknown_load_type(finger):
+    class Gust(fr._finger.AbstractLoad):
+        beam: int = eqx.field(static=True, default=0)
+
+    _raises(finger.with_loads(Gust()), "loads[0]", "Gust")
+
+
+# Shapes of load and section values. A force given as an (x, z) pair, like the points,
+# is a natural mistake; validation must name it rather than pass it on to the solver
+# (where it fails with a broadcasting error, or not at all).
+
+
+def test_point_load_force_with_wrong_shape(finger):
+    bad = finger.with_loads(fr.PointLoad(0, 60.0, (0.05, 0.0)))
+    _raises(bad, "loads[0].force", "0.05")
+
+
+def test_point_load_moment_with_wrong_shape(finger):
+    bad = finger.with_loads(fr.PointLoad(0, 60.0, (0.05, 0.0, 0.0), (0.0, 1.0)))
+    _raises(bad, "loads[0].moment")
+
+
+def test_distributed_load_force_with_wrong_shape(finger):
+    bad = finger.with_loads(fr.DistributedLoad(0, (75.0, 105.0), (1.0, 0.0)))
+    _raises(bad, "loads[0].total_force")
+
+
+def test_distributed_load_range_with_wrong_shape(finger):
+    bad = finger.with_loads(fr.DistributedLoad(0, (75.0, 90.0, 105.0), (1.0, 0.0, 0.0)))
+    _raises(bad, "loads[0].s_range")
+
+
+def test_section_thickness_with_wrong_shape(finger):
+    bad = eqx.tree_at(lambda f: f.front, finger, fr.Section(np.array([1.5, 1.5]), 20.0))
+    _raises(bad, "front.thickness")
+
+
+# --- the entry points check before compiling ---------------------------------------------
+
+
+def test_solve_finger_validates_eagerly(finger):
+    bad = _material(finger, E=-1.0)
+    with pytest.raises(fr.FingerError, match="material.E"):
+        fr.solve_finger(bad)
+    with pytest.raises(fr.FingerError, match="material.E"):
+        fr.limit_load(bad)
+
+
+@pytest.mark.parametrize("func", [fr.solve_finger, fr.limit_load, fr.topology_of])
+def test_unknown_mode(finger, func):
+    with pytest.raises(ValueError, match="mode.*'bad'"):
+        func(finger, mode="bad")
+
+
+def test_solve_finger_needs_a_finger():
+    with pytest.raises(TypeError, match="Finger"):
+        fr.solve_finger({"E": 12.0})
+
+
+@pytest.mark.parametrize("steps", [0, -3, 2.5])
+def test_integrator_steps(steps):
+    with pytest.raises(ValueError, match=re.escape(f"Integrator.steps") + ".*" + re.escape(
+            repr(steps))):
+        fr.Integrator(steps=steps)
+
+
+def test_integrator_backend():
+    with pytest.raises(ValueError, match="Integrator.backend.*'rk4'"):
+        fr.Integrator(backend="rk4")
+
+
+@pytest.mark.parametrize("field,value", [("rtol", -1), ("atol", 0.0), ("min_arc_step", -1e-3),
+                                         ("initial_arc_step", "big")])
+def test_solver_options_tolerances(field, value):
+    with pytest.raises(ValueError, match=f"SolverOptions.{field}.*{re.escape(repr(value))}"):
+        fr.SolverOptions(**{field: value})
+
+
+@pytest.mark.parametrize("field,value", [("max_newton_steps", 0), ("max_continuation_steps", 2.0)])
+def test_solver_options_counts(field, value):
+    with pytest.raises(ValueError, match=f"SolverOptions.{field}.*{re.escape(repr(value))}"):
+        fr.SolverOptions(**{field: value})
+
+
+def test_cantilever_arguments():
+    m, sec = fr.Material(12.0, 0.45), fr.Section(1.5, 20.0)
+    with pytest.raises(ValueError, match="length.*-1.0"):
+        fr.solve_cantilever(-1.0, m, sec)
+    with pytest.raises(ValueError, match="mode.*'auto'"):
+        fr.solve_cantilever(100.0, m, sec, mode="auto")
