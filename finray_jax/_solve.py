@@ -4,6 +4,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import lineax as lx
 import optimistix as optx
 from jax import lax
 
@@ -85,6 +86,67 @@ def _newton(fn, y0, args, options: SolverOptions):
     return sol.value, ok, sol.stats["num_steps"]
 
 
+class _Newton(eqx.Module):
+    y: jax.Array
+    k: jax.Array
+    done: jax.Array
+    ok: jax.Array
+    sign_first: jax.Array
+    sign: jax.Array
+
+
+def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
+    """Newton's method on the natural residual with a dense LU per iteration.
+
+    Besides the root it returns the sign of det(J) at the first and the last iterate (free
+    from the LU factors), which tells whether the root lies on the branch of the start.
+    Converged when both the step and the residual are below atol + rtol |y| (scaled).
+    """
+
+    def body(st: _Newton):
+        J, r = jax.jacfwd(lambda y: (lambda o: (o, o))(_natural_fn(y, (problem, lam))),
+                          has_aux=True)(st.y)
+        lu, piv = jax.scipy.linalg.lu_factor(J)
+        d = jnp.diagonal(lu)
+        swaps = jnp.sum(piv != jnp.arange(piv.shape[0]))
+        sign = jnp.prod(jnp.sign(d)) * (1.0 - 2.0 * (swaps % 2))
+        dy = jax.scipy.linalg.lu_solve((lu, piv), r)
+        y = st.y - dy
+        scale = options.atol + options.rtol * jnp.abs(y)
+        finite = jnp.all(jnp.isfinite(y))
+        conv = (jnp.max(jnp.abs(dy) / scale) < 1.0) & (jnp.max(jnp.abs(r)) < options.atol)
+        k = st.k + 1
+        return _Newton(
+            y=y, k=k, done=conv | ~finite | (k >= options.max_newton_steps),
+            ok=conv & finite,
+            sign_first=jnp.where(st.k == 0, sign, st.sign_first), sign=sign,
+        )
+
+    init = _Newton(y0, jnp.asarray(0), ~jnp.asarray(active), jnp.asarray(False),
+                   jnp.asarray(0.0), jnp.asarray(0.0))
+    return lax.while_loop(lambda st: ~st.done, body, init)
+
+
+def _root_primal(inputs):
+    _, _, y = inputs
+    return y, None
+
+
+def _root_rewrite(root, residual, inputs):
+    del residual
+    problem, lam, _ = inputs
+    return _natural_fn(root, (problem, lam))
+
+
+def _attach_implicit_gradient(problem, lam, y):
+    """Return y (a root of the residual) with tangents from the implicit function theorem."""
+    y = lax.stop_gradient(y)
+    root, _ = optx.internal.implicit_jvp(
+        _root_primal, _root_rewrite, (problem, lam, y), frozenset(), lx.LU()
+    )
+    return root
+
+
 def _jacobians(problem, y, lam):
     J, Jl = jax.jacfwd(lambda a, b: _natural_fn(a, (problem, b)), argnums=(0, 1))(y, lam)
     return J, Jl
@@ -122,7 +184,7 @@ class _Arc(eqx.Module):
     iterations: jax.Array
 
 
-def _continuation(problem: Problem, y0, target, options: SolverOptions):
+def _continuation(problem: Problem, y0, target, options: SolverOptions, active=True):
     """Pseudo-arc-length continuation from (y0, lam = 0) toward lam = target.
 
     Stops when the path crosses `target` (reached) or when it folds back (the load factor
@@ -172,7 +234,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions):
         )
 
     init = _Arc(y0, lam0, t0, jnp.asarray(opts.initial_arc_step), jnp.asarray(False),
-                jnp.asarray(False), jnp.asarray(False), jnp.asarray(False), y0, lam0,
+                jnp.asarray(False), ~jnp.asarray(active), jnp.asarray(False), y0, lam0,
                 jnp.asarray(0), jnp.asarray(0))
     return lax.while_loop(cond, body, init)
 
@@ -196,46 +258,41 @@ def _nograd(tree):
     return jax.tree_util.tree_map(lambda x: lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
-def _det_sign(problem, y, lam):
-    J, _ = _jacobians(problem, y, lam)
-    return jnp.linalg.slogdet(J)[0]
-
-
 @eqx.filter_jit
 def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     problem = _make_problem(topo, integrator, finger)
     quiet = _nograd(problem)
-    y_und = problem.undeformed().reshape(-1)
-    y_start = lax.stop_gradient(y_und if init is None else init)
+    y_und = quiet.undeformed().reshape(-1)
+    y_start = y_und if init is None else lax.stop_gradient(init)
     one = jnp.ones(())
 
-    def continuation():
-        s = _continuation(quiet, lax.stop_gradient(y_und), one, options)
+    def continuation(active):
+        s = _continuation(quiet, y_und, one, options, active)
         frac = (1.0 - s.lam) / jnp.maximum(s.lam_over - s.lam, 1e-300)
         guess = jnp.where(s.reached, s.y + frac * (s.y_over - s.y), s.y)
-        lam_end = jnp.where(s.reached, one, s.lam)
-        return guess, lam_end, _fold_result(s), s.iterations
+        final = _newton_lean(quiet, guess, one, options, active & s.reached)
+        code = _fold_result(s)
+        code = RESULTS.where(s.reached & ~final.ok, RESULTS.nonlinear_divergence, code)
+        y = jnp.where(s.reached, final.y, s.y)
+        lam = jnp.where(s.reached, one, s.lam)
+        return y, lam, code, s.iterations + final.k
 
     if options.direct_first:
-        y_d, ok_d, nit_d = _newton(_natural_fn, y_start, (quiet, one), options)
-        same_branch = _det_sign(quiet, y_d, one) == _det_sign(quiet, y_und, 0.0 * one)
-        direct_ok = ok_d & same_branch
-        guess, lam_end, code, nit_c = lax.cond(
+        # Newton at full load; accepted when it converges on the branch it started from
+        # (same sign of det J at the first and last iterate: no fold crossed).
+        direct = _newton_lean(quiet, y_start, one, options)
+        direct_ok = direct.ok & (direct.sign == direct.sign_first)
+        y, lam_end, code, nit_c = lax.cond(
             direct_ok,
-            lambda: (y_d, one, RESULTS.successful, jnp.asarray(0)),
-            continuation,
+            lambda: (direct.y, one, RESULTS.successful, jnp.asarray(0)),
+            lambda: continuation(~direct_ok),
         )
-        iterations = nit_d + nit_c
+        iterations = direct.k + nit_c
     else:
-        guess, lam_end, code, iterations = continuation()
+        y, lam_end, code, iterations = continuation(jnp.asarray(True))
 
-    # The final root solve carries the gradient (implicit function theorem).
-    guess = lax.stop_gradient(guess)
-    y_fin, ok_fin, nit_fin = _newton(_natural_fn, guess, (problem, lam_end), options)
-    reached = code == RESULTS.successful
-    y = jnp.where(reached, y_fin, guess)
-    code = RESULTS.where(reached & ~ok_fin, RESULTS.nonlinear_divergence, code)
-    return _outputs(problem, y, lam_end, code, iterations + nit_fin)
+    y = _attach_implicit_gradient(problem, lam_end, y)
+    return _outputs(problem, y, lam_end, code, iterations)
 
 
 @eqx.filter_jit

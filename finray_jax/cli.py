@@ -122,34 +122,59 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"finray_jax {fr.__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    s = sub.add_parser("solve", help="solve a finger file for its equilibrium",
-                       description="Solve a finger file. Exit code 0 converged, 2 beyond the "
-                       "limit load, 3 failed, 1 user error.")
+    s = sub.add_parser(
+        "solve",
+        help="solve a finger file for its equilibrium",
+        description="Solve a finger file. Exit code 0 converged, 2 beyond the "
+        "limit load, 3 failed, 1 user error.",
+    )
     s.add_argument("finger", metavar="FINGER.toml")
     s.add_argument("--out", metavar="RESULT.json", help="write the solution as JSON")
     s.add_argument("--plot", metavar="SHAPE.png", help="save a figure (shape and n(s), m(s))")
-    s.add_argument("--load-scale", type=_finite_float, default=None, metavar="X",
-                   help="multiply every load by X")
-    s.add_argument("--mode", choices=fio.MODES, default=None,
-                   help="override [solver] mode (default: the file's, else auto)")
+    s.add_argument(
+        "--load-scale",
+        type=_finite_float,
+        default=None,
+        metavar="X",
+        help="multiply every load by X",
+    )
+    s.add_argument(
+        "--mode",
+        choices=fio.MODES,
+        default=None,
+        help="override [solver] mode (default: the file's, else auto)",
+    )
 
-    lim = sub.add_parser("limit", help="find the limit (fold) load factor",
-                         description="Trace the loading branch to its fold: the largest factor "
-                         "on the file's loads with an equilibrium. Exit 0 found, 3 not found.")
+    lim = sub.add_parser(
+        "limit",
+        help="find the limit (fold) load factor",
+        description="Trace the loading branch to its fold: the largest factor "
+        "on the file's loads with an equilibrium. Exit 0 found, 3 not found.",
+    )
     lim.add_argument("finger", metavar="FINGER.toml")
     lim.add_argument("--out", metavar="LIMIT.json", help="write the result as JSON")
     lim.add_argument("--plot", metavar="SHAPE.png", help="save a figure of the limit state")
     lim.add_argument("--mode", choices=fio.MODES, default=None)
 
-    v = sub.add_parser("validate", help="check a finger file",
-                       description="Check a finger file; print OK or the error (exit 1).")
+    v = sub.add_parser(
+        "validate",
+        help="check a finger file",
+        description="Check a finger file; print OK or the error (exit 1).",
+    )
     v.add_argument("finger", metavar="FINGER.toml")
 
-    d = sub.add_parser("demo", help="solve the default finger under the paper's Fig. 3 load",
-                       description="Solve Finger-1 (examples/finger1.toml) under 4 N in +x "
-                       "spread over l5..l7; write DIR/demo.png and DIR/demo.json.")
-    d.add_argument("--out", metavar="DIR", default=".",
-                   help="output directory (default: the current directory)")
+    d = sub.add_parser(
+        "demo",
+        help="solve the default finger under the paper's Fig. 3 load",
+        description="Solve Finger-1 (examples/finger1.toml) under 4 N in +x "
+        "spread over l5..l7; write DIR/demo.png and DIR/demo.json.",
+    )
+    d.add_argument(
+        "--out",
+        metavar="DIR",
+        default=".",
+        help="output directory (default: the current directory)",
+    )
     return p
 
 
@@ -203,8 +228,12 @@ def _summary(sol, finger, settings, source: str, elapsed: float | None = None) -
 
 def _table(head, rows) -> list[str]:
     widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
-    fmt = lambda r: "  " + "  ".join(
-        str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(r, widths))
+    fmt = lambda r: (
+        "  "
+        + "  ".join(
+            str(c).ljust(w) if i == 0 else str(c).rjust(w)
+            for i, (c, w) in enumerate(zip(r, widths, strict=True))
+        )
     )
     return [fmt(head)] + [fmt(r) for r in rows]
 
@@ -224,8 +253,10 @@ def _crossbeam_table(sol, finger) -> list[str]:
         mid = len(axial) // 2
         my = np.max(np.abs(np.asarray(b.moment, dtype=np.float64)[:, 1]))
         rows.append([str(i), _f(cb.front_s[i]), _f(cb.back_s[i]), _f(axial[mid]), _f(my)])
-    return ["crossbeams (numbered from 0; axial force at mid-length, + = tension):",
-            *_table(head, rows)]
+    return [
+        "crossbeams (numbered from 0; axial force at mid-length, + = tension):",
+        *_table(head, rows),
+    ]
 
 
 # --------------------------------------------------------------------------------------
@@ -277,8 +308,10 @@ def _cmd_limit(args) -> int:
     if found:
         print(f"limit load factor: {_f(factor, 6)} ({elapsed:.1f} s)")
     else:
-        print(f"no limit load found: continuation stopped at load factor {_f(factor, 6)} "
-              f"without a fold ({elapsed:.1f} s). {fr.RESULTS[lim.solution.result]}")
+        print(
+            f"no limit load found: continuation stopped at load factor {_f(factor, 6)} "
+            f"without a fold ({elapsed:.1f} s). {fr.RESULTS[lim.solution.result]}"
+        )
     for j, load in enumerate(finger.loads):
         if isinstance(load, fr.PointLoad):
             F = np.asarray(load.force) * factor
@@ -288,20 +321,28 @@ def _cmd_limit(args) -> int:
             s0, s1 = np.asarray(load.s_range)
             what = f"distributed load over s = {_f(s0)}..{_f(s1)} mm, total"
         beam = {0: "front", 1: "back"}.get(load.beam, f"crossbeam {load.beam - 2}")
-        print(f"  loads[{j}] ({beam} beam, {what}) at the limit: "
-              f"({_f(F[0])}, {_f(F[1])}, {_f(F[2])}) N")
+        print(
+            f"  loads[{j}] ({beam} beam, {what}) at the limit: "
+            f"({_f(F[0])}, {_f(F[1])}, {_f(F[2])}) N"
+        )
     sol = lim.solution
     d = np.asarray(sol.tip.displacement, dtype=np.float64)
-    print(f"equilibrium there: tip dx = {_f(d[0])} mm, dz = {_f(d[2])} mm, rotation about y = "
-          f"{_f(np.degrees(float(sol.tip.rotation[1])))} deg")
+    print(
+        f"equilibrium there: tip dx = {_f(d[0])} mm, dz = {_f(d[2])} mm, rotation about y = "
+        f"{_f(np.degrees(float(sol.tip.rotation[1])))} deg"
+    )
     if args.out:
         fio.write_json(args.out, fio.limit_to_dict(lim, finger, settings=settings))
         print(f"wrote {args.out}")
     if args.plot:
         from .plot import save_solution_figure
 
-        save_solution_figure(sol, finger.scale_loads(factor), args.plot,
-                             title=f"{settings.name or args.finger} at the limit load")
+        save_solution_figure(
+            sol,
+            finger.scale_loads(factor),
+            args.plot,
+            title=f"{settings.name or args.finger} at the limit load",
+        )
         print(f"wrote {args.plot}")
     return EXIT_OK if found else EXIT_FAILED
 
@@ -309,15 +350,19 @@ def _cmd_limit(args) -> int:
 def _cmd_validate(args) -> int:
     finger, settings = fio.load_finger(args.finger)
     name = f" ({settings.name})" if settings.name else ""
-    print(f"{args.finger}{name}: OK: {finger.n_crossbeams} crossbeams, {len(finger.loads)} "
-          f"loads, mode {settings.mode}")
+    print(
+        f"{args.finger}{name}: OK: {finger.n_crossbeams} crossbeams, {len(finger.loads)} "
+        f"loads, mode {settings.mode}"
+    )
     return EXIT_OK
 
 
 def _cmd_demo(args) -> int:
     finger, settings = fio.loads_finger(DEMO_FINGER_TOML, source=DEMO_SOURCE)
-    print("finray demo: Finger-1 under the paper's Fig. 3 load, 4 N in +x spread over the "
-          "front beam from l5 = 75 mm to l7 = 105 mm")
+    print(
+        "finray demo: Finger-1 under the paper's Fig. 3 load, 4 N in +x spread over the "
+        "front beam from l5 = 75 mm to l7 = 105 mm"
+    )
     sol, elapsed = _solve(finger, settings, None)
     print(_summary(sol, finger, settings, "examples/finger1.toml", elapsed))
     print("\n".join(_crossbeam_table(sol, finger)))
@@ -331,8 +376,7 @@ def _cmd_demo(args) -> int:
     return STATUS_EXIT[sol.status]
 
 
-COMMANDS = {"solve": _cmd_solve, "limit": _cmd_limit, "validate": _cmd_validate,
-            "demo": _cmd_demo}
+COMMANDS = {"solve": _cmd_solve, "limit": _cmd_limit, "validate": _cmd_validate, "demo": _cmd_demo}
 
 
 def main(argv=None) -> int:

@@ -169,8 +169,9 @@ class _Reader:
     def array_of_tables(self, value, path: str) -> list:
         if isinstance(value, dict):
             raise self.error(
-                path, f"expected an array of tables written [[{path}]] (one per entry), got a "
-                f"single table [{path}]"
+                path,
+                f"expected an array of tables written [[{path}]] (one per entry), got a "
+                f"single table [{path}]",
             )
         if not isinstance(value, list) or not all(isinstance(x, dict) for x in value):
             raise self.error(path, f"expected an array of tables [[{path}]]", value)
@@ -222,8 +223,9 @@ class _Reader:
         for i, x in enumerate(value):
             if isinstance(x, bool) or not isinstance(x, (int, float)):
                 raise self.error(
-                    path, f"expected {what}, an array of {n} numbers; element {i} is "
-                    f"{_type_name(x)}", value
+                    path,
+                    f"expected {what}, an array of {n} numbers; element {i} is {_type_name(x)}",
+                    value,
                 )
             if not math.isfinite(float(x)):
                 raise self.error(path, f"element {i} must be a finite number", value)
@@ -252,8 +254,16 @@ _KEY_HELP = {
 }
 
 _TOP_KEYS = (
-    "meta", "torsion", "material", "front", "back", "crossbeams", "crossbeam_pattern",
-    "adaptor", "loads", "solver",
+    "meta",
+    "torsion",
+    "material",
+    "front",
+    "back",
+    "crossbeams",
+    "crossbeam_pattern",
+    "adaptor",
+    "loads",
+    "solver",
 )
 _TOP_HINTS = {
     "crossbeam": "unknown key (did you mean 'crossbeams'? write one [[crossbeams]] table per "
@@ -275,8 +285,8 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     r.table(doc, "", _TOP_KEYS, required=("material", "front", "back"), hints=_TOP_HINTS)
     if "crossbeams" in doc and "crossbeam_pattern" in doc:
         raise r.error(
-            "crossbeam_pattern", "give either [[crossbeams]] tables or one "
-            "[crossbeam_pattern], not both"
+            "crossbeam_pattern",
+            "give either [[crossbeams]] tables or one [crossbeam_pattern], not both",
         )
 
     # [meta]
@@ -287,8 +297,9 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     torsion = r.string(doc.get("torsion", "paper"), "torsion", TORSION_KINDS)
 
     # [material]
-    mat = r.table(doc["material"], "material", ("E", "nu", "shear_coefficient"),
-                  required=("E", "nu"))
+    mat = r.table(
+        doc["material"], "material", ("E", "nu", "shear_coefficient"), required=("E", "nu")
+    )
     material = Material(
         E=r.number(mat["E"], "material.E", positive=True),
         nu=r.number(mat["nu"], "material.nu"),
@@ -298,10 +309,16 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     )
 
     # [front], [back]
-    front = r.table(doc["front"], "front", ("base", "tip", "thickness", "depth"),
-                    required=("base", "tip", "thickness", "depth"))
+    front = r.table(
+        doc["front"],
+        "front",
+        ("base", "tip", "thickness", "depth"),
+        required=("base", "tip", "thickness", "depth"),
+    )
     back = r.table(
-        doc["back"], "back", ("base", "thickness", "depth"),
+        doc["back"],
+        "back",
+        ("base", "thickness", "depth"),
         required=("base", "thickness", "depth"),
         hints={"tip": "the two beams share one tip: give it once, as front.tip"},
     )
@@ -324,26 +341,33 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
             p = f"crossbeams[{i}]"
             keys = ("front_s", "back_s", "thickness", "depth")
             r.table(cb, p, keys, required=keys)
-            rows.append((
-                r.number(cb["front_s"], f"{p}.front_s"),
-                r.number(cb["back_s"], f"{p}.back_s"),
-                r.number(cb["thickness"], f"{p}.thickness", positive=True),
-                r.number(cb["depth"], f"{p}.depth", positive=True),
-            ))
+            rows.append(
+                (
+                    r.number(cb["front_s"], f"{p}.front_s"),
+                    r.number(cb["back_s"], f"{p}.back_s"),
+                    r.number(cb["thickness"], f"{p}.thickness", positive=True),
+                    r.number(cb["depth"], f"{p}.depth", positive=True),
+                )
+            )
         cols = np.asarray(rows, dtype=np.float64).reshape(-1, 4).T
         crossbeams = Crossbeams(*cols)
     n_cb = int(np.shape(crossbeams.front_s)[0])
 
     # [adaptor]
-    ad = r.table(doc.get("adaptor", {}), "adaptor",
-                 ("front_base", "back_base", "front_clamp_length", "back_clamp_length"))
+    ad = r.table(
+        doc.get("adaptor", {}),
+        "adaptor",
+        ("front_base", "back_base", "front_clamp_length", "back_clamp_length"),
+    )
     adaptor = Adaptor(
         front_base=r.string(ad.get("front_base", "clamped"), "adaptor.front_base", BASE_KINDS),
         back_base=r.string(ad.get("back_base", "clamped"), "adaptor.back_base", BASE_KINDS),
-        front_clamp_length=r.number(ad.get("front_clamp_length", 0.0),
-                                    "adaptor.front_clamp_length", nonnegative=True),
-        back_clamp_length=r.number(ad.get("back_clamp_length", 0.0),
-                                   "adaptor.back_clamp_length", nonnegative=True),
+        front_clamp_length=r.number(
+            ad.get("front_clamp_length", 0.0), "adaptor.front_clamp_length", nonnegative=True
+        ),
+        back_clamp_length=r.number(
+            ad.get("back_clamp_length", 0.0), "adaptor.back_clamp_length", nonnegative=True
+        ),
     )
 
     # [[loads]]
@@ -378,25 +402,33 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
 
 def _pattern(value, r: _Reader, front_base, back_base, tip) -> Crossbeams:
     p = "crossbeam_pattern"
-    tbl = r.table(value, p, ("count", "front_s", "horizontal", "back_s", "thickness", "depth"),
-                  required=("count", "front_s", "thickness", "depth"))
+    tbl = r.table(
+        value,
+        p,
+        ("count", "front_s", "horizontal", "back_s", "thickness", "depth"),
+        required=("count", "front_s", "thickness", "depth"),
+    )
     n = r.integer(tbl["count"], f"{p}.count", minimum=1)
     f0, f1 = r.vector(tbl["front_s"], f"{p}.front_s", 2, "[first, last] front-beam arc lengths")
     if n == 1 and f0 != f1:
-        raise r.error(f"{p}.front_s", "with count = 1, first and last must be equal",
-                      tbl["front_s"])
+        raise r.error(
+            f"{p}.front_s", "with count = 1, first and last must be equal", tbl["front_s"]
+        )
     horizontal = r.boolean(tbl.get("horizontal", False), f"{p}.horizontal")
     front_s = np.linspace(f0, f1, n)
     if horizontal and "back_s" in tbl:
-        raise r.error(f"{p}.back_s", "give either horizontal = true or back_s, not both",
-                      tbl["back_s"])
+        raise r.error(
+            f"{p}.back_s", "give either horizontal = true or back_s, not both", tbl["back_s"]
+        )
     if horizontal:
         fb, bb, tp = (np.asarray(x, dtype=np.float64) for x in (front_base, back_base, tip))
         lf, lb = np.linalg.norm(tp - fb), np.linalg.norm(tp - bb)
         if lf == 0 or abs(tp[1] - bb[1]) < 1e-12 * max(lb, 1.0):
-            raise r.error(f"{p}.horizontal",
-                          "needs a back beam that rises in z (back.base and front.tip differ "
-                          "in z)", True)
+            raise r.error(
+                f"{p}.horizontal",
+                "needs a back beam that rises in z (back.base and front.tip differ in z)",
+                True,
+            )
         z = fb[1] + front_s * (tp[1] - fb[1]) / lf
         back_s = (z - bb[1]) * lb / (tp[1] - bb[1])
     elif "back_s" in tbl:
@@ -417,14 +449,19 @@ def _beam_index(value, path: str, r: _Reader, n_cb: int) -> int:
             return 1
         close = difflib.get_close_matches(value, ["front", "back"], n=1, cutoff=0.5)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise r.error(path, f'must be "front", "back" or a crossbeam index 0..{n_cb - 1}{hint}',
-                      value)
+        raise r.error(
+            path, f'must be "front", "back" or a crossbeam index 0..{n_cb - 1}{hint}', value
+        )
     if isinstance(value, bool) or not isinstance(value, int):
-        raise r.error(path, f'must be "front", "back" or a crossbeam index, got '
-                      f"{_type_name(value)}", value)
+        raise r.error(
+            path, f'must be "front", "back" or a crossbeam index, got {_type_name(value)}', value
+        )
     if not 0 <= value < n_cb:
-        raise r.error(path, f"no such crossbeam: this finger has {n_cb} crossbeams, indices "
-                      f"0..{n_cb - 1}", value)
+        raise r.error(
+            path,
+            f"no such crossbeam: this finger has {n_cb} crossbeams, indices 0..{n_cb - 1}",
+            value,
+        )
     return 2 + value
 
 
@@ -439,16 +476,18 @@ def _load(value, p: str, r: _Reader, n_cb: int):
         hints = {
             "total_force": "a point load takes force = [Fx, Fy, Fz] (N); total_force is for "
             'kind = "distributed"',
-            "s_range": 'a point load takes s (one arc length, mm); s_range is for kind = '
+            "s_range": "a point load takes s (one arc length, mm); s_range is for kind = "
             '"distributed"',
         }
     else:
-        allowed, required = ("kind", "beam", "s_range", "total_force"), (
-            "beam", "s_range", "total_force")
+        allowed, required = (
+            ("kind", "beam", "s_range", "total_force"),
+            ("beam", "s_range", "total_force"),
+        )
         hints = {
             "force": "a distributed load takes total_force = [Fx, Fy, Fz], its resultant in N "
-            "(spread uniformly over s_range); force is for kind = \"point\"",
-            "s": "a distributed load takes s_range = [s0, s1] (mm); s is for kind = \"point\"",
+            '(spread uniformly over s_range); force is for kind = "point"',
+            "s": 'a distributed load takes s_range = [s0, s1] (mm); s is for kind = "point"',
             "moment": "a distributed load carries no moment; add a point load for one",
         }
     r.table(value, p, allowed, required=required, hints=hints)
@@ -458,14 +497,19 @@ def _load(value, p: str, r: _Reader, n_cb: int):
             beam,
             r.number(value["s"], f"{p}.s"),
             r.vector(value["force"], f"{p}.force", 3, "a force [Fx, Fy, Fz] in N"),
-            r.vector(value.get("moment", [0.0, 0.0, 0.0]), f"{p}.moment", 3,
-                     "a moment [Mx, My, Mz] in N mm"),
+            r.vector(
+                value.get("moment", [0.0, 0.0, 0.0]),
+                f"{p}.moment",
+                3,
+                "a moment [Mx, My, Mz] in N mm",
+            ),
         )
     s_range = r.vector(value["s_range"], f"{p}.s_range", 2, "[s0, s1] in mm")
     if not s_range[0] < s_range[1]:
         raise r.error(f"{p}.s_range", "needs s0 < s1", value["s_range"])
     return DistributedLoad(
-        beam, s_range,
+        beam,
+        s_range,
         r.vector(value["total_force"], f"{p}.total_force", 3, "a force [Fx, Fy, Fz] in N"),
     )
 
@@ -573,8 +617,11 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
     always written as explicit [[crossbeams]] tables.
     """
     validate_finger(finger)
-    out = ["# finray_jax finger file. Units: mm, N, MPa; points are (x, z).",
-           f"torsion = {_ts(finger.torsion)}", ""]
+    out = [
+        "# finray_jax finger file. Units: mm, N, MPa; points are (x, z).",
+        f"torsion = {_ts(finger.torsion)}",
+        "",
+    ]
     if settings is not None and (settings.name or settings.description):
         out += ["[meta]"]
         if settings.name:
@@ -583,31 +630,68 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
             out.append(f"description = {_ts(settings.description)}")
         out.append("")
     m = finger.material
-    out += ["[material]", f"E = {_tf(m.E)}", f"nu = {_tf(m.nu)}",
-            f"shear_coefficient = {_tf(m.shear_coefficient)}", ""]
-    out += ["[front]", f"base = {_tv(finger.front_base)}", f"tip = {_tv(finger.tip)}",
-            f"thickness = {_tf(finger.front.thickness)}", f"depth = {_tf(finger.front.depth)}",
-            ""]
-    out += ["[back]", f"base = {_tv(finger.back_base)}",
-            f"thickness = {_tf(finger.back.thickness)}", f"depth = {_tf(finger.back.depth)}", ""]
+    out += [
+        "[material]",
+        f"E = {_tf(m.E)}",
+        f"nu = {_tf(m.nu)}",
+        f"shear_coefficient = {_tf(m.shear_coefficient)}",
+        "",
+    ]
+    out += [
+        "[front]",
+        f"base = {_tv(finger.front_base)}",
+        f"tip = {_tv(finger.tip)}",
+        f"thickness = {_tf(finger.front.thickness)}",
+        f"depth = {_tf(finger.front.depth)}",
+        "",
+    ]
+    out += [
+        "[back]",
+        f"base = {_tv(finger.back_base)}",
+        f"thickness = {_tf(finger.back.thickness)}",
+        f"depth = {_tf(finger.back.depth)}",
+        "",
+    ]
     ad = finger.adaptor
-    out += ["[adaptor]", f"front_base = {_ts(ad.front_base)}", f"back_base = {_ts(ad.back_base)}",
-            f"front_clamp_length = {_tf(ad.front_clamp_length)}",
-            f"back_clamp_length = {_tf(ad.back_clamp_length)}", ""]
+    out += [
+        "[adaptor]",
+        f"front_base = {_ts(ad.front_base)}",
+        f"back_base = {_ts(ad.back_base)}",
+        f"front_clamp_length = {_tf(ad.front_clamp_length)}",
+        f"back_clamp_length = {_tf(ad.back_clamp_length)}",
+        "",
+    ]
     cb = finger.crossbeams
     for i in range(finger.n_crossbeams):
-        out += [f"[[crossbeams]]  # {i}", f"front_s = {_tf(cb.front_s[i])}",
-                f"back_s = {_tf(cb.back_s[i])}", f"thickness = {_tf(cb.thickness[i])}",
-                f"depth = {_tf(cb.depth[i])}", ""]
+        out += [
+            f"[[crossbeams]]  # {i}",
+            f"front_s = {_tf(cb.front_s[i])}",
+            f"back_s = {_tf(cb.back_s[i])}",
+            f"thickness = {_tf(cb.thickness[i])}",
+            f"depth = {_tf(cb.depth[i])}",
+            "",
+        ]
     for load in finger.loads:
         beam = {0: '"front"', 1: '"back"'}.get(load.beam, str(load.beam - 2))
         if isinstance(load, PointLoad):
-            out += ["[[loads]]", 'kind = "point"', f"beam = {beam}", f"s = {_tf(load.s)}",
-                    f"force = {_tv(load.force)}", f"moment = {_tv(load.moment)}", ""]
+            out += [
+                "[[loads]]",
+                'kind = "point"',
+                f"beam = {beam}",
+                f"s = {_tf(load.s)}",
+                f"force = {_tv(load.force)}",
+                f"moment = {_tv(load.moment)}",
+                "",
+            ]
         elif isinstance(load, DistributedLoad):
-            out += ["[[loads]]", 'kind = "distributed"', f"beam = {beam}",
-                    f"s_range = {_tv(load.s_range)}", f"total_force = {_tv(load.total_force)}",
-                    ""]
+            out += [
+                "[[loads]]",
+                'kind = "distributed"',
+                f"beam = {beam}",
+                f"s_range = {_tv(load.s_range)}",
+                f"total_force = {_tv(load.total_force)}",
+                "",
+            ]
         else:
             raise TypeError(f"cannot write a {type(load).__name__} to a finger file")
     if settings is not None:
@@ -623,8 +707,12 @@ def _settings_toml(settings: SolveSettings) -> list[str]:
             f"cannot write integrator solver {name} to a finger file; use one of "
             f"{tuple(INTEGRATORS)}"
         )
-    out = ["[solver]", f"mode = {_ts(settings.mode)}", f"integrator = {_ts(name)}",
-           f"steps = {integ.steps}"]
+    out = [
+        "[solver]",
+        f"mode = {_ts(settings.mode)}",
+        f"integrator = {_ts(name)}",
+        f"steps = {integ.steps}",
+    ]
     if getattr(integ, "backend", None) not in (None, Integrator().backend):
         out.append(f"backend = {_ts(integ.backend)}")
     for f in _solver_option_fields():
@@ -681,11 +769,19 @@ def _beam_dict(b) -> dict:
 def _load_dict(load, factor=1.0) -> dict:
     beam = {0: "front", 1: "back"}.get(load.beam, load.beam - 2)
     if isinstance(load, PointLoad):
-        return {"kind": "point", "beam": beam, "s": load.s,
-                "force": np.asarray(load.force) * factor,
-                "moment": np.asarray(load.moment) * factor}
-    return {"kind": "distributed", "beam": beam, "s_range": load.s_range,
-            "total_force": np.asarray(load.total_force) * factor}
+        return {
+            "kind": "point",
+            "beam": beam,
+            "s": load.s,
+            "force": np.asarray(load.force) * factor,
+            "moment": np.asarray(load.moment) * factor,
+        }
+    return {
+        "kind": "distributed",
+        "beam": beam,
+        "s_range": load.s_range,
+        "total_force": np.asarray(load.total_force) * factor,
+    }
 
 
 def solution_to_dict(sol, finger: Finger, *, settings: SolveSettings | None = None) -> dict:
@@ -742,18 +838,20 @@ def limit_to_dict(lim, finger: Finger, *, settings: SolveSettings | None = None)
     factor = float(lim.load_factor)
     sol = solution_to_dict(lim.solution, finger, settings=settings)
     summary = {k: sol[k] for k in ("tip", "reactions", "max_residual", "iterations")}
-    return _plain({
-        "finray_jax_version": __version__,
-        "units": dict(UNITS),
-        "name": settings.name if settings is not None else "",
-        "mode": lim.solution.mode,
-        "found": bool(lim.found),
-        "limit_load_factor": factor,
-        "loads": [_load_dict(ld) for ld in finger.loads],
-        "limit_loads": [_load_dict(ld, factor) for ld in finger.loads],
-        "equilibrium_at_limit": summary,
-        "solution": sol,
-    })
+    return _plain(
+        {
+            "finray_jax_version": __version__,
+            "units": dict(UNITS),
+            "name": settings.name if settings is not None else "",
+            "mode": lim.solution.mode,
+            "found": bool(lim.found),
+            "limit_load_factor": factor,
+            "loads": [_load_dict(ld) for ld in finger.loads],
+            "limit_loads": [_load_dict(ld, factor) for ld in finger.loads],
+            "equilibrium_at_limit": summary,
+            "solution": sol,
+        }
+    )
 
 
 def _json_text(obj, level=0) -> str:
@@ -761,8 +859,7 @@ def _json_text(obj, level=0) -> str:
     if isinstance(obj, dict):
         if not obj:
             return "{}"
-        items = [f"{inner}{json.dumps(str(k))}: {_json_text(v, level + 1)}" for k, v in
-                 obj.items()]
+        items = [f"{inner}{json.dumps(str(k))}: {_json_text(v, level + 1)}" for k, v in obj.items()]
         return "{\n" + ",\n".join(items) + "\n" + pad + "}"
     if isinstance(obj, (list, tuple)):
         if all(not isinstance(v, (dict, list, tuple)) for v in obj):

@@ -47,13 +47,16 @@ def _xz(points) -> np.ndarray:
 
 
 def _undeformed_lines(finger: Finger):
-    fb, bb, tip = (np.asarray(x, dtype=np.float64) for x in
-                   (finger.front_base, finger.back_base, finger.tip))
+    fb, bb, tip = (
+        np.asarray(x, dtype=np.float64) for x in (finger.front_base, finger.back_base, finger.tip)
+    )
     lf, lb = np.linalg.norm(tip - fb), np.linalg.norm(tip - bb)
     cb = finger.crossbeams
     pf = fb + np.asarray(cb.front_s)[:, None] * (tip - fb) / lf
     pb = bb + np.asarray(cb.back_s)[:, None] * (tip - bb) / lb
-    return [np.stack([fb, tip]), np.stack([bb, tip])] + [np.stack([a, b]) for a, b in zip(pf, pb)]
+    return [np.stack([fb, tip]), np.stack([bb, tip])] + [
+        np.stack([a, b]) for a, b in zip(pf, pb, strict=True)
+    ]
 
 
 def _point_on(beam_sol, s) -> np.ndarray:
@@ -70,8 +73,15 @@ def _beam_of(sol, beam: int):
     return sol.crossbeam(beam - 2)
 
 
-def plot_finger(sol, finger: Finger, ax=None, *, undeformed: bool = True, loads: bool = True,
-                legend: bool = True):
+def plot_finger(
+    sol,
+    finger: Finger,
+    ax=None,
+    *,
+    undeformed: bool = True,
+    loads: bool = True,
+    legend: bool = True,
+):
     """Draw the deformed finger in the x-z plane (mm) on `ax` (new axes if None).
 
     undeformed: also draw the undeformed finger in grey. loads: draw the load arrows.
@@ -81,19 +91,36 @@ def plot_finger(sol, finger: Finger, ax=None, *, undeformed: bool = True, loads:
         _, ax = _pyplot().subplots(figsize=(5, 7))
     if undeformed:
         for k, line in enumerate(_undeformed_lines(finger)):
-            ax.plot(line[:, 0], line[:, 1], color=UNDEFORMED_COLOR, lw=1.2, ls="--",
-                    label="undeformed" if k == 0 else None, zorder=1)
+            ax.plot(
+                line[:, 0],
+                line[:, 1],
+                color=UNDEFORMED_COLOR,
+                lw=1.2,
+                ls="--",
+                label="undeformed" if k == 0 else None,
+                zorder=1,
+            )
     for i in range(finger.n_crossbeams):
         p = _xz(sol.crossbeam(i).position)
-        ax.plot(p[:, 0], p[:, 1], color=CROSSBEAM_COLOR, lw=1.6,
-                label="crossbeams" if i == 0 else None, zorder=2)
-    for b, color, name in ((sol.front, FRONT_COLOR, "front beam"),
-                           (sol.back, BACK_COLOR, "back beam")):
+        ax.plot(
+            p[:, 0],
+            p[:, 1],
+            color=CROSSBEAM_COLOR,
+            lw=1.6,
+            label="crossbeams" if i == 0 else None,
+            zorder=2,
+        )
+    for b, color, name in (
+        (sol.front, FRONT_COLOR, "front beam"),
+        (sol.back, BACK_COLOR, "back beam"),
+    ):
         p = _xz(b.position)
         ax.plot(p[:, 0], p[:, 1], color=color, lw=2.4, label=name, zorder=3)
     # Bases: the adaptor.
-    for base, kind in ((finger.front_base, finger.adaptor.front_base),
-                       (finger.back_base, finger.adaptor.back_base)):
+    for base, kind in (
+        (finger.front_base, finger.adaptor.front_base),
+        (finger.back_base, finger.adaptor.back_base),
+    ):
         x, z = np.asarray(base, dtype=np.float64)
         marker = {"clamped": "s", "pinned": "^", "free": "o"}[kind]
         ax.plot([x], [z], marker=marker, color="black", ms=8, mfc="0.3", zorder=4)
@@ -116,7 +143,7 @@ def _draw_loads(ax, sol, finger: Finger):
         f = np.asarray(load.force if isinstance(load, PointLoad) else load.total_force)
         forces.append(np.hypot(f[0], f[2]))
     fmax = max(max(forces), 1e-300)
-    for load, fmag in zip(finger.loads, forces):
+    for load, fmag in zip(finger.loads, forces, strict=True):
         if fmag == 0:
             continue
         beam = _beam_of(sol, load.beam)
@@ -136,16 +163,29 @@ def _draw_loads(ax, sol, finger: Finger):
             d = d * 0.6
         for s in spots:
             head = _point_on(beam, s)
-            ax.annotate("", xy=head, xytext=head - d,
-                        arrowprops=dict(arrowstyle="-|>", color=LOAD_COLOR, lw=1.3), zorder=5)
+            ax.annotate(
+                "",
+                xy=head,
+                xytext=head - d,
+                arrowprops=dict(arrowstyle="-|>", color=LOAD_COLOR, lw=1.3),
+                zorder=5,
+            )
         if len(spots) > 1:
             tails = np.array([_point_on(beam, s) - d for s in spots])
             ax.plot(tails[:, 0], tails[:, 1], color=LOAD_COLOR, lw=1.0, zorder=5)
         tails = np.array([_point_on(beam, s) - d for s in spots])
         ax.update_datalim(tails)  # keep the arrow tails inside the view
-        mid = tails[len(spots) // 2]
-        ax.text(mid[0], mid[1], label + " ", ha="right", va="center", fontsize="small",
-                color=LOAD_COLOR)
+        top = tails[np.argmax(tails[:, 1])]
+        ax.annotate(
+            label,
+            xy=top,
+            xytext=(0, 6),
+            textcoords="offset points",
+            ha="left",
+            va="bottom",
+            fontsize="small",
+            color=LOAD_COLOR,
+        )
 
 
 def _material_components(b):
@@ -153,11 +193,24 @@ def _material_components(b):
     R = np.asarray(b.frame, dtype=np.float64)
     n = np.asarray(b.force, dtype=np.float64)
     m = np.asarray(b.moment, dtype=np.float64)
-    return (np.einsum("ni,ni->n", n, R[:, :, 2]), np.einsum("ni,ni->n", n, R[:, :, 0]),
-            np.einsum("ni,ni->n", m, R[:, :, 1]))
+    return (
+        np.einsum("ni,ni->n", n, R[:, :, 2]),
+        np.einsum("ni,ni->n", n, R[:, :, 0]),
+        np.einsum("ni,ni->n", m, R[:, :, 1]),
+    )
 
 
-def plot_internal_forces(sol, axes=None, *, components: str = "world", finger: Finger | None = None):
+def _outer_points(s: np.ndarray) -> np.ndarray:
+    """Mask keeping the first and last of each run of equal s (several jumps at one point,
+    e.g. a crossbeam joint and a load, are drawn as one jump)."""
+    same_prev = np.r_[False, s[1:] == s[:-1]]
+    same_next = np.r_[s[:-1] == s[1:], False]
+    return ~(same_prev & same_next)
+
+
+def plot_internal_forces(
+    sol, axes=None, *, components: str = "world", finger: Finger | None = None
+):
     """Internal force and moment along the front and back beams.
 
     components: "world" plots n_x(s), n_z(s) (N) and m_y(s) (N mm), world frame;
@@ -177,10 +230,15 @@ def plot_internal_forces(sol, axes=None, *, components: str = "world", finger: F
     if components == "world":
         labels = ("$n_x$ (N)", "$n_z$ (N)", "$m_y$ (N mm)")
     else:
-        labels = ("axial force $n\\cdot d_3$ (N)", "shear force $n\\cdot d_1$ (N)",
-                  "bending moment $m\\cdot d_2$ (N mm)")
-    for b, color, name in ((sol.front, FRONT_COLOR, "front beam"),
-                           (sol.back, BACK_COLOR, "back beam")):
+        labels = (
+            "axial force $n\\cdot d_3$ (N)",
+            "shear force $n\\cdot d_1$ (N)",
+            "bending moment $m\\cdot d_2$ (N mm)",
+        )
+    for b, color, name in (
+        (sol.front, FRONT_COLOR, "front beam"),
+        (sol.back, BACK_COLOR, "back beam"),
+    ):
         s = np.asarray(b.s, dtype=np.float64)
         if components == "world":
             n = np.asarray(b.force, dtype=np.float64)
@@ -188,14 +246,16 @@ def plot_internal_forces(sol, axes=None, *, components: str = "world", finger: F
             ys = (n[:, 0], n[:, 2], m[:, 1])
         else:
             ys = _material_components(b)
-        for ax, y in zip(axes, ys):
-            ax.plot(s, y, color=color, lw=1.8, label=name)
+        keep = _outer_points(s)
+        for ax, y in zip(axes, ys, strict=True):
+            ax.plot(s[keep], y[keep], color=color, lw=1.8, label=name)
     if finger is not None:
         for key, color in (("front_s", FRONT_COLOR), ("back_s", BACK_COLOR)):
             for a in np.asarray(getattr(finger.crossbeams, key), dtype=np.float64):
                 for ax in axes:
                     ax.axvline(a, color=color, alpha=0.18, lw=0.8, zorder=0)
-    for ax, label in zip(axes, labels):
+        axes[0].plot([], [], color="0.6", alpha=0.5, lw=0.8, label="crossbeam joints")
+    for ax, label in zip(axes, labels, strict=True):
         ax.set_ylabel(label)
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.grid(True, lw=0.4, alpha=0.5)
@@ -218,8 +278,7 @@ def solution_figure(sol, finger: Finger, *, title: str | None = None, components
     ax_shape.set_title("shape (undeformed dashed)")
     plot_internal_forces(sol, axes, components=components, finger=finger)
     frame = "world frame" if components == "world" else "material frame"
-    axes[0].set_title(f"internal force n(s) and moment m(s), {frame} (faint lines: crossbeam "
-                      "joints)")
+    axes[0].set_title(f"internal force n(s) and moment m(s), {frame}")
     for ax in axes[:-1]:
         ax.tick_params(labelbottom=False)
     tip = np.asarray(sol.tip.displacement, dtype=np.float64)
@@ -232,8 +291,15 @@ def solution_figure(sol, finger: Finger, *, title: str | None = None, components
     return fig
 
 
-def save_solution_figure(sol, finger: Finger, path, *, title: str | None = None, dpi: int = 130,
-                         components: str = "world") -> None:
+def save_solution_figure(
+    sol,
+    finger: Finger,
+    path,
+    *,
+    title: str | None = None,
+    dpi: int = 130,
+    components: str = "world",
+) -> None:
     """Save `solution_figure` to `path` (format from the extension, e.g. .png, .pdf)."""
     path = os.fspath(path)
     parent = os.path.dirname(path)

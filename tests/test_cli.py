@@ -24,8 +24,17 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 REF_A = str(ROOT / "examples" / "ref_a.toml")
 
 SOLUTION_KEYS = {
-    "finray_jax_version", "units", "mode", "status", "load_factor", "iterations",
-    "max_residual", "tip", "reactions", "beams", "crossbeam_wrenches",
+    "finray_jax_version",
+    "units",
+    "mode",
+    "status",
+    "load_factor",
+    "iterations",
+    "max_residual",
+    "tip",
+    "reactions",
+    "beams",
+    "crossbeam_wrenches",
 }
 
 
@@ -48,8 +57,9 @@ def ref_a_solved(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("solve")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("FINRAY_NO_CACHE", "1")
-        code, out, err = run(["solve", REF_A, "--out", str(tmp / "result.json"),
-                              "--plot", str(tmp / "shape.png")])
+        code, out, err = run(
+            ["solve", REF_A, "--out", str(tmp / "result.json"), "--plot", str(tmp / "shape.png")]
+        )
     data = json.loads((tmp / "result.json").read_text())
     return code, out, err, data, tmp
 
@@ -103,13 +113,16 @@ def test_solve_json_matches_library(ref_a_solved, ref_a_reference):
     tol = dict(rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(data["tip"]["displacement"], sol.tip.displacement, **tol)
     np.testing.assert_allclose(data["tip"]["rotation"], sol.tip.rotation, **tol)
-    np.testing.assert_allclose(data["reactions"]["front"]["force"],
-                               sol.reactions_front.force, **tol)
-    np.testing.assert_allclose(data["reactions"]["back"]["moment"],
-                               sol.reactions_back.moment, **tol)
+    np.testing.assert_allclose(
+        data["reactions"]["front"]["force"], sol.reactions_front.force, **tol
+    )
+    np.testing.assert_allclose(
+        data["reactions"]["back"]["moment"], sol.reactions_back.moment, **tol
+    )
     np.testing.assert_allclose(data["beams"]["front"]["position"], sol.front.position, **tol)
-    np.testing.assert_allclose(data["beams"]["crossbeams"][3]["force"],
-                               sol.crossbeam(3).force, **tol)
+    np.testing.assert_allclose(
+        data["beams"]["crossbeams"][3]["force"], sol.crossbeam(3).force, **tol
+    )
     assert data["iterations"] == int(sol.iterations)
 
 
@@ -147,8 +160,10 @@ def test_validate_examples(name):
 
 def _bad_file(tmp_path):
     text = (ROOT / "examples" / "ref_a.toml").read_text()
-    text = text.replace("front_s = 45.0\nback_s = 47.43416490252569\nthickness = 1.0",
-                        "front_s = 45.0\nback_s = 47.43416490252569\nthickness = -1.0")
+    text = text.replace(
+        "front_s = 45.0\nback_s = 47.43416490252569\nthickness = 1.0",
+        "front_s = 45.0\nback_s = 47.43416490252569\nthickness = -1.0",
+    )
     assert "thickness = -1.0" in text
     path = tmp_path / "bad.toml"
     path.write_text(text)
@@ -196,8 +211,14 @@ def test_missing_file(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "argv",
-    [[], ["frobnicate"], ["solve"], ["solve", REF_A, "--mode", "3d"],
-     ["solve", REF_A, "--load-scale", "abc"], ["solve", REF_A, "--load-scale", "nan"]],
+    [
+        [],
+        ["frobnicate"],
+        ["solve"],
+        ["solve", REF_A, "--mode", "3d"],
+        ["solve", REF_A, "--load-scale", "abc"],
+        ["solve", REF_A, "--load-scale", "nan"],
+    ],
 )
 def test_usage_errors(argv, capsys):
     code = cli.main(argv)
@@ -218,8 +239,13 @@ def test_console_entry_point_in_a_subprocess(tmp_path):
     """A real process: exit code 1 and one line on stderr, no traceback."""
     path = _bad_file(tmp_path)
     env = dict(os.environ, FINRAY_NO_CACHE="1")
-    proc = subprocess.run([sys.executable, "-m", "finray_jax.cli", "validate", str(path)],
-                          capture_output=True, text=True, env=env, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "finray_jax.cli", "validate", str(path)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
     assert proc.returncode == 1
     assert proc.stderr.startswith("finray: error: ")
     assert "crossbeams[2].thickness = -1.0" in proc.stderr
@@ -277,8 +303,9 @@ def test_limit_ref_a(tmp_path):
     assert data["found"] is True
     # ref-A folds a little under 2 N under a point force at s = 60 (L1 is 0.05 N)
     assert 30.0 < data["limit_load_factor"] < 40.0
-    np.testing.assert_allclose(data["limit_loads"][0]["force"][0],
-                               0.05 * data["limit_load_factor"], rtol=1e-12)
+    np.testing.assert_allclose(
+        data["limit_loads"][0]["force"][0], 0.05 * data["limit_load_factor"], rtol=1e-12
+    )
     assert {"tip", "reactions"} <= set(data["equilibrium_at_limit"])
     assert data["solution"]["status"] == "converged"
     assert "limit load factor" in out

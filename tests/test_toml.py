@@ -38,8 +38,11 @@ def _value(v) -> str:
 
 def to_toml(doc: dict) -> str:
     """Scalars first, then tables, then arrays of tables (enough for finger files)."""
-    out = [f"{k} = {_value(v)}" for k, v in doc.items() if not isinstance(v, dict)
-           and not (isinstance(v, list) and v and isinstance(v[0], dict))]
+    out = [
+        f"{k} = {_value(v)}"
+        for k, v in doc.items()
+        if not isinstance(v, dict) and not (isinstance(v, list) and v and isinstance(v[0], dict))
+    ]
     for k, v in doc.items():
         if isinstance(v, dict):
             out += ["", f"[{k}]"] + [f"{kk} = {_value(vv)}" for kk, vv in v.items()]
@@ -56,8 +59,12 @@ BASE = {
     "back": {"base": [40.0, 0.0], "thickness": 1.5, "depth": 20.0},
     "adaptor": {"front_base": "clamped", "back_base": "clamped"},
     "crossbeams": [
-        {"front_s": 30.0 * (i + 1), "back_s": 30.0 * (i + 1) * math.hypot(40, 120) / 120,
-         "thickness": 1.0, "depth": 20.0}
+        {
+            "front_s": 30.0 * (i + 1),
+            "back_s": 30.0 * (i + 1) * math.hypot(40, 120) / 120,
+            "thickness": 1.0,
+            "depth": 20.0,
+        }
         for i in range(3)
     ],
     "loads": [{"kind": "point", "beam": "front", "s": 60.0, "force": [0.05, 0.0, 0.0]}],
@@ -89,7 +96,7 @@ def assert_same_finger(a: fr.Finger, b: fr.Finger):
     lb, tb = jax.tree_util.tree_flatten(b)
     assert ta == tb
     assert len(la) == len(lb)
-    for x, y in zip(la, lb):
+    for x, y in zip(la, lb, strict=True):
         x, y = np.asarray(x), np.asarray(y)
         assert x.dtype == y.dtype and x.shape == y.shape
         np.testing.assert_array_equal(x, y)
@@ -296,15 +303,17 @@ def test_missing_load_kind():
 
 def test_distributed_load_with_force():
     d = doc()
-    d["loads"] = [{"kind": "distributed", "beam": "front", "s_range": [75.0, 105.0],
-                   "force": [1.0, 0.0, 0.0]}]
+    d["loads"] = [
+        {"kind": "distributed", "beam": "front", "s_range": [75.0, 105.0], "force": [1.0, 0.0, 0.0]}
+    ]
     assert_error(d, "loads[0].force = [1.0, 0.0, 0.0]", "total_force")
 
 
 def test_distributed_load_with_s():
     d = doc()
-    d["loads"] = [{"kind": "distributed", "beam": "front", "s": 80.0,
-                   "total_force": [1.0, 0.0, 0.0]}]
+    d["loads"] = [
+        {"kind": "distributed", "beam": "front", "s": 80.0, "total_force": [1.0, 0.0, 0.0]}
+    ]
     assert_error(d, "loads[0].s = 80.0", "s_range")
 
 
@@ -316,15 +325,22 @@ def test_point_load_with_total_force():
 
 def test_distributed_range_reversed():
     d = doc()
-    d["loads"] = [{"kind": "distributed", "beam": 1, "s_range": [20.0, 10.0],
-                   "total_force": [1.0, 0.0, 0.0]}]
+    d["loads"] = [
+        {"kind": "distributed", "beam": 1, "s_range": [20.0, 10.0], "total_force": [1.0, 0.0, 0.0]}
+    ]
     assert_error(d, "loads[0].s_range = [20.0, 10.0]", "s0 < s1")
 
 
 def test_distributed_range_beyond_beam():
     d = doc()
-    d["loads"] = [{"kind": "distributed", "beam": "back", "s_range": [100.0, 130.0],
-                   "total_force": [1.0, 0.0, 0.0]}]
+    d["loads"] = [
+        {
+            "kind": "distributed",
+            "beam": "back",
+            "s_range": [100.0, 130.0],
+            "total_force": [1.0, 0.0, 0.0],
+        }
+    ]
     assert_error(d, "loads[0].s_range = [100.0, 130.0]", "back beam")
 
 
@@ -373,8 +389,14 @@ def test_file_name_in_message(tmp_path):
 
 def test_solver_settings():
     d = doc()
-    d["solver"] = {"mode": "spatial", "integrator": "dopri5", "steps": 20, "rtol": 1e-9,
-                   "max_newton_steps": 30, "max_continuation_steps": 50}
+    d["solver"] = {
+        "mode": "spatial",
+        "integrator": "dopri5",
+        "steps": 20,
+        "rtol": 1e-9,
+        "max_newton_steps": 30,
+        "max_continuation_steps": 50,
+    }
     d["meta"] = {"name": "test", "description": "a test finger"}
     _, s = load(d)
     assert s.mode == "spatial"
@@ -420,20 +442,31 @@ def test_unknown_meta_key():
 def test_pattern_horizontal_equals_explicit():
     d = doc()
     del d["crossbeams"]
-    d["crossbeam_pattern"] = {"count": 3, "front_s": [30.0, 90.0], "horizontal": True,
-                              "thickness": 1.0, "depth": 20.0}
+    d["crossbeam_pattern"] = {
+        "count": 3,
+        "front_s": [30.0, 90.0],
+        "horizontal": True,
+        "thickness": 1.0,
+        "depth": 20.0,
+    }
     f_pattern, _ = load(d)
     f_explicit, _ = load(doc())
     for key in ("front_s", "back_s", "thickness", "depth"):
-        np.testing.assert_allclose(getattr(f_pattern.crossbeams, key),
-                                   getattr(f_explicit.crossbeams, key), rtol=1e-14)
+        np.testing.assert_allclose(
+            getattr(f_pattern.crossbeams, key), getattr(f_explicit.crossbeams, key), rtol=1e-14
+        )
 
 
 def test_pattern_explicit_back_s():
     d = doc()
     del d["crossbeams"]
-    d["crossbeam_pattern"] = {"count": 4, "front_s": [20.0, 80.0], "back_s": [25.0, 100.0],
-                              "thickness": 1.2, "depth": 15.0}
+    d["crossbeam_pattern"] = {
+        "count": 4,
+        "front_s": [20.0, 80.0],
+        "back_s": [25.0, 100.0],
+        "thickness": 1.2,
+        "depth": 15.0,
+    }
     f, _ = load(d)
     np.testing.assert_allclose(f.crossbeams.front_s, [20.0, 40.0, 60.0, 80.0])
     np.testing.assert_allclose(f.crossbeams.back_s, [25.0, 50.0, 75.0, 100.0])
@@ -442,32 +475,46 @@ def test_pattern_explicit_back_s():
 
 def test_pattern_and_crossbeams_conflict():
     d = doc()
-    d["crossbeam_pattern"] = {"count": 3, "front_s": [30.0, 90.0], "horizontal": True,
-                              "thickness": 1.0, "depth": 20.0}
+    d["crossbeam_pattern"] = {
+        "count": 3,
+        "front_s": [30.0, 90.0],
+        "horizontal": True,
+        "thickness": 1.0,
+        "depth": 20.0,
+    }
     assert_error(d, "crossbeam_pattern", "not both")
 
 
 def test_pattern_needs_back_s_or_horizontal():
     d = doc()
     del d["crossbeams"]
-    d["crossbeam_pattern"] = {"count": 3, "front_s": [30.0, 90.0], "thickness": 1.0,
-                              "depth": 20.0}
+    d["crossbeam_pattern"] = {"count": 3, "front_s": [30.0, 90.0], "thickness": 1.0, "depth": 20.0}
     assert_error(d, "crossbeam_pattern.back_s", "horizontal = true")
 
 
 def test_pattern_bad_count():
     d = doc()
     del d["crossbeams"]
-    d["crossbeam_pattern"] = {"count": 2.5, "front_s": [30.0, 90.0], "horizontal": True,
-                              "thickness": 1.0, "depth": 20.0}
+    d["crossbeam_pattern"] = {
+        "count": 2.5,
+        "front_s": [30.0, 90.0],
+        "horizontal": True,
+        "thickness": 1.0,
+        "depth": 20.0,
+    }
     assert_error(d, "crossbeam_pattern.count = 2.5", "integer")
 
 
 def test_pattern_outside_beam_is_reported():
     d = doc()
     del d["crossbeams"]
-    d["crossbeam_pattern"] = {"count": 3, "front_s": [30.0, 125.0], "horizontal": True,
-                              "thickness": 1.0, "depth": 20.0}
+    d["crossbeam_pattern"] = {
+        "count": 3,
+        "front_s": [30.0, 125.0],
+        "horizontal": True,
+        "thickness": 1.0,
+        "depth": 20.0,
+    }
     assert_error(d, "crossbeams[2].front_s = 125.0", "crossbeam_pattern")
 
 
@@ -492,8 +539,9 @@ def test_round_trip_everything():
         tip=(3.0, 90.0),
         front=fr.Section(2.0, 15.0),
         back=fr.Section(1.75, 15.0),
-        crossbeams=fr.Crossbeams([10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9],
-                                 [15.0, 14.0, 13.0]),
+        crossbeams=fr.Crossbeams(
+            [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
+        ),
         adaptor=fr.Adaptor("clamped", "pinned", front_clamp_length=4.0 / 3.0),
         loads=(
             fr.PointLoad(0, 50.0 + 1e-9, (0.1, 0.2, -0.3), (1.0, 2.0, 3.0)),
@@ -505,8 +553,9 @@ def test_round_trip_everything():
     settings = fio.SolveSettings(
         mode="spatial",
         integrator=fr.Integrator(solver=dfx.Bosh3(scan_kind="lax"), steps=7),
-        options=fr.SolverOptions(rtol=1e-9, atol=3e-11, max_newton_steps=11,
-                                 max_continuation_steps=33),
+        options=fr.SolverOptions(
+            rtol=1e-9, atol=3e-11, max_newton_steps=11, max_continuation_steps=33
+        ),
         name='a "quoted" name',
         description="line one\nline two: é",
     )
@@ -520,8 +569,12 @@ def test_round_trip_everything():
 
 def test_round_trip_no_crossbeams_no_loads():
     finger = fr.Finger(
-        material=fr.Material(12.0, 0.45), front_base=(0.0, 0.0), back_base=(30.0, 0.0),
-        tip=(0.0, 80.0), front=fr.Section(2.0, 20.0), back=fr.Section(2.0, 20.0),
+        material=fr.Material(12.0, 0.45),
+        front_base=(0.0, 0.0),
+        back_base=(30.0, 0.0),
+        tip=(0.0, 80.0),
+        front=fr.Section(2.0, 20.0),
+        back=fr.Section(2.0, 20.0),
         crossbeams=fr.Crossbeams(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)),
     )
     back, _ = fio.loads_finger(fio.finger_to_toml(finger))
@@ -545,8 +598,7 @@ def test_example_fingers(name):
     finger, settings = fio.load_finger(EXAMPLES / f"{name}.toml")
     fr.validate_finger(finger)
     length = {"finger1": 120.0, "finger2": 80.0}[name]
-    np.testing.assert_allclose(np.asarray(finger.tip)[1] - np.asarray(finger.front_base)[1],
-                               length)
+    np.testing.assert_allclose(np.asarray(finger.tip)[1] - np.asarray(finger.front_base)[1], length)
     # horizontal crossbeams: both ends at the same height
     fb, bb, tip = (np.asarray(x) for x in (finger.front_base, finger.back_base, finger.tip))
     cb = finger.crossbeams
@@ -569,8 +621,21 @@ def test_write_json_strict(tmp_path):
     import json
 
     path = tmp_path / "sub" / "x.json"
-    fio.write_json(path, {"a": np.array([[1.0, np.nan], [2.0, 3.0]]), "b": np.float64(2.5),
-                          "c": [{"d": np.int64(3)}], "e": "text", "f": True})
+    fio.write_json(
+        path,
+        {
+            "a": np.array([[1.0, np.nan], [2.0, 3.0]]),
+            "b": np.float64(2.5),
+            "c": [{"d": np.int64(3)}],
+            "e": "text",
+            "f": True,
+        },
+    )
     data = json.loads(path.read_text())
-    assert data == {"a": [[1.0, None], [2.0, 3.0]], "b": 2.5, "c": [{"d": 3}], "e": "text",
-                    "f": True}
+    assert data == {
+        "a": [[1.0, None], [2.0, 3.0]],
+        "b": 2.5,
+        "c": [{"d": 3}],
+        "e": "text",
+        "f": True,
+    }

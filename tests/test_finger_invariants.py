@@ -1,0 +1,408 @@
+"""Assembly invariants of the finger solve on ref-A: zero load, global balance, planar vs
+spatial, out-of-plane loads, no recompilation for new design values, warm starts,
+adaptors, and the behaviour at and beyond the limit load.
+
+Compiling one (topology, mode) pair costs ~40-80 s on 2 cores, so solutions are shared
+through module-scoped fixtures and the default suite compiles only seven of them:
+ref-A with the point load at s = 60 (L1, L2 and every design variant) planar, the same
+warm-started (init=...), planar with no load, planar with L3, spatial with the point load,
+and the pinned and the free front base.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import numpy as np
+import pytest
+from helpers import beam_at, global_balance
+
+import finray_jax as fr
+from finray_jax import _solve
+from finray_jax._rotation import planar_frame
+
+LB = float(np.hypot(40.0, 120.0))  # back-beam length of ref-A
+
+
+def _replace(module, **kw):
+    """A copy through the constructor, so converters turn new values into float64 arrays
+    (eqx.tree_at with a Python float would make it a static leaf)."""
+    return dataclasses.replace(module, **kw)
+
+
+def _ref(load):
+    return fr.ref_finger_a(load)
+
+
+def _solve_ok(finger, **kw):
+    sol = fr.solve_finger(finger, **kw)
+    assert sol.status == "converged", sol.status
+    return sol
+
+
+def _beams(sol):
+    yield "front", sol.front
+    yield "back", sol.back
+    for i in range(sol.crossbeams.s.shape[0]):
+        yield f"crossbeam {i}", sol.crossbeam(i)
+
+
+def _finite(sol):
+    import jax
+
+    return all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree_util.tree_leaves(sol)
+               if eqx.is_array(x))
+
+
+# --------------------------------------------------------------------------------------
+# Shared solutions (module scope: each compiles at most once per process)
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sol_none():
+    return _solve_ok(_ref("none"), mode="planar")
+
+
+@pytest.fixture(scope="module")
+def sol_l1():
+    return _solve_ok(_ref("L1"), mode="planar")
+
+
+@pytest.fixture(scope="module")
+def sol_l2():
+    return _solve_ok(_ref("L2"), mode="planar")
+
+
+@pytest.fixture(scope="module")
+def sol_l3():
+    return _solve_ok(_ref("L3"), mode="planar")
+
+
+@pytest.fixture(scope="module")
+def sol_l1_spatial():
+    return _solve_ok(_ref("L1"), mode="spatial")
+
+
+CASES = {"L1": "sol_l1", "L2": "sol_l2", "L3": "sol_l3", "L1-spatial": "sol_l1_spatial"}
+
+
+# --------------------------------------------------------------------------------------
+# (a) zero load
+# --------------------------------------------------------------------------------------
+
+
+def _undeformed(finger, name, s):
+    """Undeformed position (N, 3) and frame angle of a beam of `finger` at arc lengths s."""
+    fb, bb, tip = (np.array([p[0], 0.0, p[1]]) for p in
+                   (np.asarray(finger.front_base), np.asarray(finger.back_base),
+                    np.asarray(finger.tip)))
+    tf = (tip - fb) / np.linalg.norm(tip - fb)
+    tb = (tip - bb) / np.linalg.norm(tip - bb)
+    if name == "front":
+        start, t = fb, tf
+    elif name == "back":
+        start, t = bb, tb
+    else:
+        i = int(name.split()[-1])
+        start = fb + float(finger.crossbeams.front_s[i]) * tf
+        end = bb + float(finger.crossbeams.back_s[i]) * tb
+        t = (end - start) / np.linalg.norm(end - start)
+    return start + np.asarray(s)[:, None] * t, np.arctan2(t[0], t[2])
+
+
+def test_zero_load_leaves_the_finger_undeformed(sol_none):
+    finger = _ref("none")
+    # Tolerances: at zero load the undeformed state is the root up to rounding of
+    # O(100 mm) coordinates (1e-14 mm); 1e-12 mm / 1e-12 N leaves a margin of 100.
+    for name, beam in _beams(sol_none):
+        p0, theta = _undeformed(finger, name, beam.s)
+        np.testing.assert_allclose(np.asarray(beam.position), p0, rtol=0, atol=1e-12,
+                                   err_msg=name)
+        np.testing.assert_allclose(np.asarray(beam.frame),
+                                   np.broadcast_to(np.asarray(planar_frame(theta)),
+                                                   beam.frame.shape),
+                                   rtol=0, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(np.asarray(beam.force), 0.0, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(np.asarray(beam.moment), 0.0, atol=1e-12, err_msg=name)
+    assert float(sol_none.front.s[-1]) == pytest.approx(120.0, abs=1e-12)
+    assert float(sol_none.back.s[-1]) == pytest.approx(LB, abs=1e-12)
+    np.testing.assert_allclose(np.asarray(sol_none.tip.position), [0.0, 0.0, 120.0], atol=1e-12)
+    np.testing.assert_allclose(np.asarray(sol_none.tip.displacement), 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(sol_none.tip.rotation), 0.0, atol=1e-12)
+    for r in (sol_none.reactions_front, sol_none.reactions_back):
+        np.testing.assert_allclose(np.asarray(r.force), 0.0, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(r.moment), 0.0, atol=1e-12)
+    assert float(sol_none.load_factor) == 1.0
+
+
+# --------------------------------------------------------------------------------------
+# (b) global force and moment balance
+# --------------------------------------------------------------------------------------
+
+# Tolerances: with point loads only, n is constant between cuts and m + p x n is a linear
+# invariant of the rod ODE, which Runge-Kutta preserves exactly; the assembly enforces
+# every jump and the tip junction to the Newton tolerance (scaled residual ~1e-13), so the
+# whole finger balances to rounding. Under L3 the moment of the distributed load,
+# integral of p(s) x f ds, is a quadratic invariant that Tsit5 keeps only to its
+# truncation error, and the test integrates p(s) from the solution's points with the
+# 11-point Newton-Cotes rule per 15 mm segment: both errors measure ~1e-10 of the largest
+# moment term at the default 10 steps (2e-12 at 20 steps). 1e-9 holds for all cases.
+FORCE_TOL = 1e-9  # N
+MOMENT_RTOL = 1e-9  # relative to the largest moment term
+
+
+def _assert_balanced(finger, sol, load_factor=1.0):
+    F, M, scale = global_balance(finger, sol, load_factor)
+    assert np.max(np.abs(F)) < FORCE_TOL, F
+    assert np.max(np.abs(M)) < MOMENT_RTOL * scale, (M, scale)
+    return F, M, scale
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_global_balance(case, request):
+    sol = request.getfixturevalue(CASES[case])
+    finger = _ref(case.split("-")[0])
+    F, M, scale = _assert_balanced(finger, sol)
+    # The reactions really carry the load (the check is not vacuous).
+    applied = np.abs(np.asarray(finger.loads[0].force if case != "L3" else
+                                finger.loads[0].total_force))[0]
+    reacted = abs(float(sol.reactions_front.force[0] + sol.reactions_back.force[0]))
+    assert reacted == pytest.approx(applied, rel=1e-9)
+    assert scale > 1e-3
+
+
+def test_crossbeam_wrenches_are_the_jumps_in_the_main_beams(sol_l2):
+    """At a crossbeam's front attachment n(s+) = n(s-) - W (W the crossbeam's force on the
+    front beam), and the moment jumps by its moment; likewise on the back beam."""
+    finger = _ref("L2")
+    w = sol_l2.crossbeam_wrenches
+    for beam, s_att, force, moment in (
+        (sol_l2.front, finger.crossbeams.front_s, w.front_force, w.front_moment),
+        (sol_l2.back, finger.crossbeams.back_s, w.back_force, w.back_moment),
+    ):
+        ss = np.asarray(beam.s)
+        for i, s in enumerate(np.asarray(s_att)):
+            rows = np.flatnonzero(np.abs(ss - s) < 1e-9)
+            if i == 3 and beam is sol_l2.front:
+                continue  # the L2 point load sits at the same cut (s = 60)
+            a, b = rows[0], rows[-1]
+            np.testing.assert_allclose(
+                np.asarray(beam.force[b] - beam.force[a]), -np.asarray(force[i]), atol=1e-12)
+            np.testing.assert_allclose(
+                np.asarray(beam.moment[b] - beam.moment[a]), -np.asarray(moment[i]),
+                atol=1e-11)
+    # Each crossbeam is in equilibrium: what it applies to the front beam plus what it
+    # applies to the back beam is minus nothing (no load on the crossbeams).
+    np.testing.assert_allclose(np.asarray(w.front_force + w.back_force), 0.0, atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# (c) planar vs spatial, (d) out-of-plane load
+# --------------------------------------------------------------------------------------
+
+
+def test_planar_and_spatial_agree(sol_l1, sol_l1_spatial):
+    # Both integrate the same rod with 10 Tsit5 steps per segment; they differ only in how
+    # the rotation is integrated (angle vs frame), a ~h^5 truncation effect on rotations of
+    # ~1e-3 rad at L1: agreement to 1e-9 mm (and N, N mm) is expected.
+    assert sol_l1.mode == "planar" and sol_l1_spatial.mode == "spatial"
+    np.testing.assert_allclose(np.asarray(sol_l1_spatial.tip.position),
+                               np.asarray(sol_l1.tip.position), rtol=0, atol=1e-9)
+    for name in ("front", "back"):
+        a, b = getattr(sol_l1, name), getattr(sol_l1_spatial, name)
+        np.testing.assert_array_equal(np.asarray(a.s), np.asarray(b.s))
+        np.testing.assert_allclose(np.asarray(b.position), np.asarray(a.position), rtol=0,
+                                   atol=1e-9, err_msg=name)
+    for r_p, r_s in ((sol_l1.reactions_front, sol_l1_spatial.reactions_front),
+                     (sol_l1.reactions_back, sol_l1_spatial.reactions_back)):
+        np.testing.assert_allclose(np.asarray(r_s.force), np.asarray(r_p.force), atol=1e-9)
+        np.testing.assert_allclose(np.asarray(r_s.moment), np.asarray(r_p.moment), atol=1e-9)
+    # Nothing leaves the plane.
+    assert np.max(np.abs(np.asarray(sol_l1_spatial.front.position[:, 1]))) < 1e-12
+
+
+def test_out_of_plane_load_solves_in_3d():
+    finger = _ref("L1").with_loads(fr.PointLoad(0, 60.0, (0.02, 0.01, 0.0)))
+    sol = _solve_ok(finger)  # mode="auto" must pick the 3-D model for a y force
+    assert sol.mode == "spatial"
+    # A +y force moves the load point and the tip toward +y (well above rounding).
+    i = beam_at(sol.front, 60.0)
+    assert float(sol.front.position[i, 1]) > 1e-3
+    assert float(sol.tip.displacement[1]) > 1e-3
+    assert float(sol.tip.displacement[0]) > 0.0  # the +x part still pushes toward +x
+    _assert_balanced(finger, sol)
+    # The reactions take the y force.
+    ry = float(sol.reactions_front.force[1] + sol.reactions_back.force[1])
+    assert ry == pytest.approx(-0.01, abs=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# (e) new design values never recompile
+# --------------------------------------------------------------------------------------
+
+
+def test_design_values_do_not_recompile(sol_l1, monkeypatch):
+    base = _ref("L1")  # compiled by the sol_l1 fixture
+    cb = base.crossbeams
+    variants = {
+        "back_s": _replace(base, crossbeams=_replace(cb, back_s=np.asarray(cb.back_s) + 2.0)),
+        "crossbeam thickness": _replace(
+            base, crossbeams=_replace(cb, thickness=np.full(7, 1.2))),
+        "front thickness": _replace(base, front=fr.Section(1.6, 20.0)),
+        "E": _replace(base, material=fr.Material(15.0, 0.45)),
+        "back clamp length": _replace(base, adaptor=fr.Adaptor(back_clamp_length=10.0)),
+        "tip": _replace(base, tip=(0.0, 125.0)),
+        "load": base.with_loads(fr.PointLoad(0, 65.0, (0.08, 0.0, 0.0))),
+    }
+    # Count traces of the jitted core: _make_problem runs once per trace of _solve_core.
+    counted = eqx.debug.assert_max_traces(_solve._make_problem, max_traces=None)
+    monkeypatch.setattr(_solve, "_make_problem", counted)
+    cache = getattr(getattr(_solve._solve_core, "_cached", None), "_cache_size", None)
+    size0 = cache() if cache else None
+    for name, finger in variants.items():
+        assert fr.topology_of(finger, "planar") == fr.topology_of(base, "planar"), name
+        sol = _solve_ok(finger, mode="planar")
+        moved = np.max(np.abs(np.asarray(sol.tip.position - sol_l1.tip.position)))
+        assert moved > 1e-6, f"{name} did not change the answer"
+    assert eqx.debug.get_num_traces(counted) == 0
+    if cache:
+        assert cache() == size0
+
+
+# --------------------------------------------------------------------------------------
+# (f) warm start
+# --------------------------------------------------------------------------------------
+
+
+def test_warm_start(sol_l1):
+    finger = _replace(_ref("L1"), back=fr.Section(1.5 * 1.01, 20.0))
+    cold = _solve_ok(finger, mode="planar")
+    warm = _solve_ok(finger, mode="planar", init=sol_l1)
+    assert int(warm.iterations) < int(cold.iterations), (warm.iterations, cold.iterations)
+    # Both converge to the same root: rtol = atol = 1e-10 on unknowns scaled by 120 mm,
+    # quadratic convergence leaves ~1e-12 mm; compare to 1e-9 mm.
+    for (name, a), (_, b) in zip(_beams(cold), _beams(warm)):
+        np.testing.assert_allclose(np.asarray(b.position), np.asarray(a.position), rtol=0,
+                                   atol=1e-9, err_msg=name)
+    np.testing.assert_allclose(np.asarray(warm.reactions_back.moment),
+                               np.asarray(cold.reactions_back.moment), rtol=0, atol=1e-9)
+    # The thicker back beam really changed the answer.
+    assert np.max(np.abs(np.asarray(cold.tip.position - sol_l1.tip.position))) > 1e-5
+
+
+# --------------------------------------------------------------------------------------
+# (g) adaptors
+# --------------------------------------------------------------------------------------
+
+
+def _load_point_dx(sol):
+    """x displacement of the L1 load point (front beam, s = 60): the displacement
+    conjugate to the load, so removing a support can only increase it (linear regime)."""
+    return float(sol.front.position[beam_at(sol.front, 60.0), 0])
+
+
+def test_pinned_front_base(sol_l1):
+    finger = _replace(_ref("L1"), adaptor=fr.Adaptor("pinned", "clamped"))
+    sol = _solve_ok(finger, mode="planar")
+    # A hinge carries no moment: the hinge row holds m_y = 0 to the Newton tolerance
+    # (scaled by EI/L = 0.56 N mm), i.e. ~1e-15 N mm.
+    assert np.max(np.abs(np.asarray(sol.reactions_front.moment))) < 1e-10
+    # ... but still holds the base point, and the base turns.
+    np.testing.assert_allclose(np.asarray(sol.front.position[0]), 0.0, atol=1e-12)
+    d3 = np.asarray(sol.front.frame[0, :, 2])
+    assert abs(d3[0]) > 1e-5
+    assert abs(float(sol.reactions_front.force[0])) > 1e-4  # it carries load (7.5e-4 N)
+    _assert_balanced(finger, sol)
+    assert _load_point_dx(sol) > _load_point_dx(sol_l1)
+
+
+def test_free_front_base(sol_l1):
+    finger = _replace(_ref("L1"), adaptor=fr.Adaptor("free", "clamped"))
+    sol = _solve_ok(finger, mode="planar")
+    for x in (sol.reactions_front.force, sol.reactions_front.moment):
+        assert np.max(np.abs(np.asarray(x))) < 1e-10
+    assert np.max(np.abs(np.asarray(sol.front.position[0]))) > 1e-3  # the base moves
+    _assert_balanced(finger, sol)  # the back clamp takes everything
+    assert _load_point_dx(sol) > _load_point_dx(sol_l1)
+
+
+def test_back_clamp_length_stiffens(sol_l1):
+    base = _ref("L1")
+    stiff = _solve_ok(_replace(base, adaptor=fr.Adaptor(back_clamp_length=10.0)),
+                      mode="planar")
+    assert float(stiff.tip.displacement[0]) < float(sol_l1.tip.displacement[0])
+    assert _load_point_dx(stiff) < _load_point_dx(sol_l1)
+    # The clamped length is held rigidly on its undeformed line.
+    bs = np.asarray(stiff.back.s)
+    inside = bs <= 10.0
+    p0 = np.array([40.0, 0.0, 0.0]) + bs[inside, None] * np.array([-40.0, 0.0, 120.0]) / LB
+    np.testing.assert_allclose(np.asarray(stiff.back.position)[inside], p0, atol=1e-12)
+
+
+def test_zero_clamp_length_is_the_original(sol_l1):
+    base = _ref("L1")
+    same = _solve_ok(_replace(base, adaptor=fr.Adaptor("clamped", "clamped", 0.0, 0.0)),
+                     mode="planar")
+    for (name, a), (_, b) in zip(_beams(sol_l1), _beams(same)):
+        np.testing.assert_allclose(np.asarray(b.position), np.asarray(a.position), rtol=0,
+                                   atol=1e-12, err_msg=name)
+    # Continuity at l_c -> 0: a 1e-6 mm clamp moves the tip by O(1e-6 x d tip / d l_c).
+    tiny = _solve_ok(_replace(base, adaptor=fr.Adaptor(back_clamp_length=1e-6)),
+                     mode="planar")
+    assert np.max(np.abs(np.asarray(tiny.tip.position - sol_l1.tip.position))) < 1e-7
+
+
+@pytest.mark.parametrize("front_lc,back_lc", [(0.0, 35.0), (20.0, 0.0), (20.0, 35.0)])
+def test_clamp_over_crossbeams_balances(front_lc, back_lc):
+    """Clamped lengths covering crossbeams (back: the first two, at back_s 15.8 and 31.6;
+    front: the first, at 15): the crossbeams attach to the rigid adaptor there, and the
+    base reactions (moment about the base point) still balance the whole finger."""
+    finger = _replace(_ref("L2"), adaptor=fr.Adaptor(front_clamp_length=front_lc,
+                                                     back_clamp_length=back_lc))
+    sol = _solve_ok(finger, mode="planar")
+    _assert_balanced(finger, sol)
+    # Crossbeam ends inside a clamp do not move.
+    for i in range(2):
+        cbi = sol.crossbeam(i)
+        if back_lc > float(finger.crossbeams.back_s[i]):
+            p, _ = _undeformed(finger, f"crossbeam {i}", cbi.s[-1:])
+            np.testing.assert_allclose(np.asarray(cbi.position[-1]), p[0], atol=1e-12)
+        if front_lc > float(finger.crossbeams.front_s[i]):
+            np.testing.assert_allclose(np.asarray(cbi.position[0]), [0.0, 0.0, 15.0 * (i + 1)],
+                                       atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# (h) beyond the limit load, (i) the limit load
+# --------------------------------------------------------------------------------------
+
+# Sanity bounds on the fold of ref-A (NUMERICS.md: ~1.83 N for the point load at s = 60,
+# ~1.3 N for L3); the 1 % comparison with OpenSees lives elsewhere.
+FOLD_L2 = (1.7, 1.95)
+FOLD_L3 = (1.2, 1.45)
+
+
+def test_beyond_the_limit_load():
+    finger = _ref("L2").scale_loads(2.5 / 1.5)  # 2.5 N at s = 60: past the fold
+    sol = fr.solve_finger(finger, mode="planar")
+    assert sol.status == "beyond_limit_load"
+    assert sol.result == fr.RESULTS.beyond_limit_load
+    lam = float(sol.load_factor)
+    assert 0.0 < lam < 1.0
+    assert _finite(sol)
+    # The returned state is an equilibrium at the returned load factor, near the fold.
+    _assert_balanced(finger, sol, lam)
+    assert FOLD_L2[0] < 2.5 * lam < FOLD_L2[1]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case,bounds", [("L2", FOLD_L2), ("L3", FOLD_L3)])
+def test_limit_load(case, bounds):
+    finger = _ref(case)
+    lim = fr.limit_load(finger, mode="planar")
+    assert bool(lim.found)
+    magnitude = float(np.linalg.norm(np.asarray(
+        finger.loads[0].force if case == "L2" else finger.loads[0].total_force)))
+    assert bounds[0] < float(lim.load_factor) * magnitude < bounds[1]
+    assert _finite(lim.solution)
+    _assert_balanced(finger, lim.solution, float(lim.load_factor))
