@@ -16,11 +16,10 @@ import time
 
 import equinox as eqx
 import jax
+from _common import machine, median_time, pin_to_one_core, write
 
 import finray_jax as fr
 from finray_jax import _solve
-
-from _common import machine, median_time, pin_to_one_core, write
 
 
 def bench_case(case, mode, integrator=fr.Integrator(), repeats=15):
@@ -78,10 +77,14 @@ def main():
                 flush=True,
             )
     base = bench_case("L1", "planar", fr.Integrator(backend="diffeqsolve"), repeats=5)
-    print(f"baseline diffeqsolve L1 planar: compile {base['compile_s']:.1f} s  cold "
-          f"{base['cold_ms']:.2f} ms  warm {base['warm_ms']:.2f} ms")
-    path = write("solve", {"pinned_cores": cores, "machine": machine(), "rows": rows,
-                           "baseline_diffeqsolve": base})
+    print(
+        f"baseline diffeqsolve L1 planar: compile {base['compile_s']:.1f} s  cold "
+        f"{base['cold_ms']:.2f} ms  warm {base['warm_ms']:.2f} ms"
+    )
+    path = write(
+        "solve",
+        {"pinned_cores": cores, "machine": machine(), "rows": rows, "baseline_diffeqsolve": base},
+    )
     print(f"wrote {path}")
 
 

@@ -18,6 +18,7 @@ from ._finger import Material as Material
 from ._finger import PointLoad as PointLoad
 from ._finger import Section as Section
 from ._finger import validate_finger as validate_finger
+from ._reference import ref_finger_a as ref_finger_a
 from ._rod import Integrator as Integrator
 from ._rod import PlanarRod as PlanarRod
 from ._rod import SpatialRod as SpatialRod
@@ -29,6 +30,5 @@ from ._solve import SolverOptions as SolverOptions
 from ._solve import limit_load as limit_load
 from ._solve import solve_finger as solve_finger
 from ._solve import topology_of as topology_of
-from ._reference import ref_finger_a as ref_finger_a
 
 __version__ = "0.1.0"

@@ -124,11 +124,18 @@ def _build_index(topo: Topology) -> _Index:
     kin = np.asarray(kin, dtype=np.int64).reshape(-1, 4)
     i = lambda x: np.asarray(x, dtype=np.int64)
     return _Index(
-        kin_a=kin[:, 0], kin_b=kin[:, 1], kin_beam_a=kin[:, 2], kin_beam_b=kin[:, 3],
-        w_a=i([w[0] for w in wr]), w_b=i([w[1] for w in wr]),
+        kin_a=kin[:, 0],
+        kin_b=kin[:, 1],
+        kin_beam_a=kin[:, 2],
+        kin_beam_b=kin[:, 3],
+        w_a=i([w[0] for w in wr]),
+        w_b=i([w[1] for w in wr]),
         w_sign_a=np.asarray([w[2] for w in wr]),
-        point_rows=i(point_rows), point_loads=tuple(point_loads),
-        cb_rows=i(cb_rows), cb_src=i(cb_src), cb_sign=np.asarray(cb_sign),
+        point_rows=i(point_rows),
+        point_loads=tuple(point_loads),
+        cb_rows=i(cb_rows),
+        cb_src=i(cb_src),
+        cb_sign=np.asarray(cb_sign),
     )
 
 
@@ -193,8 +200,10 @@ def geometry(finger: Finger) -> Geometry:
     lc = jnp.linalg.norm(d, axis=-1)
     base = jnp.concatenate([jnp.stack([fb, bb]), pf], axis=0)
     theta = jnp.concatenate(
-        [jnp.stack([jnp.arctan2(tf[0], tf[2]), jnp.arctan2(tb[0], tb[2])]),
-         jnp.arctan2(d[:, 0], d[:, 2])]
+        [
+            jnp.stack([jnp.arctan2(tf[0], tf[2]), jnp.arctan2(tb[0], tb[2])]),
+            jnp.arctan2(d[:, 0], d[:, 2]),
+        ]
     )
     length = jnp.concatenate([jnp.stack([lf, lb]), lc])
     m = finger.material

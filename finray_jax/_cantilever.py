@@ -60,10 +60,13 @@ def _solve(model, integrator, q, tip_force, tip_moment, segments):
     def fn(u, _):
         return tip_rows(chain(u)[0])
 
-    sol = optx.root_find(fn, optx.Newton(rtol=1e-13, atol=1e-13), unknown, None,
-                         max_steps=60, throw=False)
+    sol = optx.root_find(
+        fn, optx.Newton(rtol=1e-13, atol=1e-13), unknown, None, max_steps=60, throw=False
+    )
     _, starts = chain(sol.value)
-    traj = segment_trajectories(model, integrator, starts, jnp.broadcast_to(q, (segments,) + q.shape))
+    traj = segment_trajectories(
+        model, integrator, starts, jnp.broadcast_to(q, (segments,) + q.shape)
+    )
     return traj, sol.result, jnp.max(jnp.abs(fn(sol.value, None)))
 
 
@@ -98,14 +101,21 @@ def solve_cantilever(
     from ._assembly import SegmentTable
 
     table = SegmentTable(
-        start_s=jnp.zeros(1), length=L[None], rigid=jnp.zeros(1), stiffness=k[None],
-        force=z3[None], precurvature=z3[None], theta=jnp.zeros(1), point=z3[None],
+        start_s=jnp.zeros(1),
+        length=L[None],
+        rigid=jnp.zeros(1),
+        stiffness=k[None],
+        force=z3[None],
+        precurvature=z3[None],
+        theta=jnp.zeros(1),
+        point=z3[None],
     )
     q = model.pack(table)[0]
-    traj, result, res = _solve(model, integrator, q, as_float(tip_force), as_float(tip_moment),
-                               segments)
+    traj, result, res = _solve(
+        model, integrator, q, as_float(tip_force), as_float(tip_moment), segments
+    )
     steps = integrator.steps
-    s = (jnp.arange(segments)[:, None] * L + jnp.linspace(0.0, 1.0, steps + 1)[None] * L)
+    s = jnp.arange(segments)[:, None] * L + jnp.linspace(0.0, 1.0, steps + 1)[None] * L
     st = traj.reshape(-1, traj.shape[-1])
     return CantileverSolution(
         s=s.reshape(-1),

@@ -4,7 +4,6 @@ Design values are float64 arrays (changing them never recompiles). What fixes sh
 code paths (counts, boundary-condition kinds, the beam a load acts on) is static.
 """
 
-
 from typing import Literal
 
 import equinox as eqx
@@ -219,10 +218,13 @@ def validate_finger(finger: Finger) -> None:
     shapes = {k: np.shape(getattr(cb, k)) for k in ("front_s", "back_s", "thickness", "depth")}
     if len(set(shapes.values())) != 1 or len(shapes["front_s"]) != 1:
         raise FingerError(f"crossbeam arrays must be 1-D of equal length, got shapes {shapes}")
-    fs = _finite("crossbeams.front_s", cb.front_s)
-    bs = _finite("crossbeams.back_s", cb.back_s)
-    _positive("crossbeams.thickness", cb.thickness)
-    _positive("crossbeams.depth", cb.depth)
+    fs = _num(cb.front_s)
+    bs = _num(cb.back_s)
+    for i in range(len(fs)):
+        _finite(f"crossbeams[{i}].front_s", fs[i])
+        _finite(f"crossbeams[{i}].back_s", bs[i])
+        _positive(f"crossbeams[{i}].thickness", _num(cb.thickness)[i])
+        _positive(f"crossbeams[{i}].depth", _num(cb.depth)[i])
     for i, (a, b) in enumerate(zip(fs, bs)):
         if not 0.0 < a < lf:
             raise FingerError(
@@ -258,9 +260,7 @@ def validate_finger(finger: Finger) -> None:
     ):
         lc = float(_finite(f"adaptor.{name}_clamp_length", length))
         if not 0.0 <= lc < total:
-            raise FingerError(
-                f"adaptor.{name}_clamp_length must lie in [0, {total:.6g}), got {lc}"
-            )
+            raise FingerError(f"adaptor.{name}_clamp_length must lie in [0, {total:.6g}), got {lc}")
         if lc > 0 and kind != "clamped":
             raise FingerError(
                 f"adaptor.{name}_clamp_length = {lc} needs adaptor.{name}_base = 'clamped', "
@@ -314,5 +314,3 @@ def torsion_constant(thickness, depth, kind: str):
     a = jnp.maximum(thickness, depth)
     b = jnp.minimum(thickness, depth)
     return a * b**3 * (1.0 / 3.0 - 0.21 * (b / a) * (1.0 - b**4 / (12.0 * a**4)))
-
-

@@ -140,7 +140,9 @@ class PlanarRod(AbstractRodModel):
         # n(r) = n0 - f r;  m(r) = m0 - t x (n0 r - f r^2 / 2)  (y-component)
         ax = nx * r - 0.5 * fx * r * r
         az = nz * r - 0.5 * fz * r * r
-        return jnp.stack([x + tx * r, z + tz * r, th, nx - fx * r, nz - fz * r, my - (tz * ax - tx * az)])
+        return jnp.stack(
+            [x + tx * r, z + tz * r, th, nx - fx * r, nz - fz * r, my - (tz * ax - tx * az)]
+        )
 
     # --- accessors on full states ---
     @staticmethod
@@ -220,8 +222,13 @@ class SpatialRod(AbstractRodModel):
     @staticmethod
     def pack(table):
         return jnp.concatenate(
-            [table.length[:, None], table.rigid[:, None], table.stiffness, table.force,
-             table.precurvature],
+            [
+                table.length[:, None],
+                table.rigid[:, None],
+                table.stiffness,
+                table.force,
+                table.precurvature,
+            ],
             axis=-1,
         )
 
@@ -326,9 +333,18 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
         ts = jnp.linspace(0.0, 1.0, n + 1)
         saveat = dfx.SaveAt(ts=ts) if save_all else dfx.SaveAt(t1=True)
         sol = dfx.diffeqsolve(
-            term, integrator.solver, 0.0, 1.0, h, y, args=q, saveat=saveat,
-            stepsize_controller=dfx.ConstantStepSize(), max_steps=n,
-            adjoint=dfx.ForwardMode(), throw=False,
+            term,
+            integrator.solver,
+            0.0,
+            1.0,
+            h,
+            y,
+            args=q,
+            saveat=saveat,
+            stepsize_controller=dfx.ConstantStepSize(),
+            max_steps=n,
+            adjoint=dfx.ForwardMode(),
+            throw=False,
         )
         return sol.ys if save_all else sol.ys[-1]
     solver = integrator.solver

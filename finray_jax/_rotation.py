@@ -8,9 +8,7 @@ def hat(v: Float[Array, "3"]) -> Float[Array, "3 3"]:
     """Skew-symmetric matrix with hat(a) b = a x b."""
     x, y, z = v[0], v[1], v[2]
     zero = jnp.zeros_like(x)
-    return jnp.stack(
-        [jnp.stack([zero, -z, y]), jnp.stack([z, zero, -x]), jnp.stack([-y, x, zero])]
-    )
+    return jnp.stack([jnp.stack([zero, -z, y]), jnp.stack([z, zero, -x]), jnp.stack([-y, x, zero])])
 
 
 def vee(S: Float[Array, "3 3"]) -> Float[Array, "3"]:

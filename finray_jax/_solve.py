@@ -3,8 +3,8 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 import lineax as lx
+import numpy as np
 import optimistix as optx
 from jax import lax
 
@@ -81,8 +81,9 @@ def _newton(fn, y0, args, options: SolverOptions):
         adjoint=optx.ImplicitAdjoint(),
         throw=False,
     )
-    ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(
-        jax.flatten_util.ravel_pytree(sol.value)[0]))
+    ok = (sol.result == optx.RESULTS.successful) & jnp.all(
+        jnp.isfinite(jax.flatten_util.ravel_pytree(sol.value)[0])
+    )
     return sol.value, ok, sol.stats["num_steps"]
 
 
@@ -104,8 +105,9 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
     """
 
     def body(st: _Newton):
-        J, r = jax.jacfwd(lambda y: (lambda o: (o, o))(_natural_fn(y, (problem, lam))),
-                          has_aux=True)(st.y)
+        J, r = jax.jacfwd(
+            lambda y: (lambda o: (o, o))(_natural_fn(y, (problem, lam))), has_aux=True
+        )(st.y)
         lu, piv = jax.scipy.linalg.lu_factor(J)
         d = jnp.diagonal(lu)
         swaps = jnp.sum(piv != jnp.arange(piv.shape[0]))
@@ -117,13 +119,22 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
         conv = (jnp.max(jnp.abs(dy) / scale) < 1.0) & (jnp.max(jnp.abs(r)) < options.atol)
         k = st.k + 1
         return _Newton(
-            y=y, k=k, done=conv | ~finite | (k >= options.max_newton_steps),
+            y=y,
+            k=k,
+            done=conv | ~finite | (k >= options.max_newton_steps),
             ok=conv & finite,
-            sign_first=jnp.where(st.k == 0, sign, st.sign_first), sign=sign,
+            sign_first=jnp.where(st.k == 0, sign, st.sign_first),
+            sign=sign,
         )
 
-    init = _Newton(y0, jnp.asarray(0), ~jnp.asarray(active), jnp.asarray(False),
-                   jnp.asarray(0.0), jnp.asarray(0.0))
+    init = _Newton(
+        y0,
+        jnp.asarray(0),
+        ~jnp.asarray(active),
+        jnp.asarray(False),
+        jnp.asarray(0.0),
+        jnp.asarray(0.0),
+    )
     return lax.while_loop(lambda st: ~st.done, body, init)
 
 
@@ -213,8 +224,9 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         accept = ok & smooth & ~folded
         reached = accept & (lam1 >= target)
         grow = accept & (nit <= 4) & ~s.near_fold
-        ds_new = jnp.where(accept, jnp.where(grow, jnp.minimum(1.6 * s.ds, opts.max_arc_step),
-                                             s.ds), 0.5 * s.ds)
+        ds_new = jnp.where(
+            accept, jnp.where(grow, jnp.minimum(1.6 * s.ds, opts.max_arc_step), s.ds), 0.5 * s.ds
+        )
         near_fold = s.near_fold | folded
         tiny = ds_new < opts.min_arc_step
         keep = accept & ~reached
@@ -233,9 +245,20 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
             iterations=s.iterations + nit,
         )
 
-    init = _Arc(y0, lam0, t0, jnp.asarray(opts.initial_arc_step), jnp.asarray(False),
-                jnp.asarray(False), ~jnp.asarray(active), jnp.asarray(False), y0, lam0,
-                jnp.asarray(0), jnp.asarray(0))
+    init = _Arc(
+        y0,
+        lam0,
+        t0,
+        jnp.asarray(opts.initial_arc_step),
+        jnp.asarray(False),
+        jnp.asarray(False),
+        ~jnp.asarray(active),
+        jnp.asarray(False),
+        y0,
+        lam0,
+        jnp.asarray(0),
+        jnp.asarray(0),
+    )
     return lax.while_loop(cond, body, init)
 
 
@@ -441,8 +464,14 @@ class LimitLoad(eqx.Module):
     solution: Solution
 
     @property
-    def found(self):
-        return self.solution.result == RESULTS.successful
+    def found(self) -> bool:
+        """True when the branch was traced to its fold (load_factor is the limit)."""
+        return bool(self.solution.result == RESULTS.successful)
+
+    @property
+    def status(self) -> str:
+        """'limit_found', or the failure of the continuation."""
+        return "limit_found" if self.found else self.solution.status
 
 
 def limit_load(
