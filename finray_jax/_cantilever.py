@@ -115,7 +115,7 @@ def solve_cantilever(
         model, integrator, q, as_float(tip_force), as_float(tip_moment), segments
     )
     steps = integrator.steps
-    s = jnp.arange(segments)[:, None] * L + jnp.linspace(0.0, 1.0, steps + 1)[None] * L
+    s = jnp.arange(segments, dtype=L.dtype)[:, None] * L + jnp.linspace(0.0, 1.0, steps + 1)[None] * L
     st = traj.reshape(-1, traj.shape[-1])
     return CantileverSolution(
         s=s.reshape(-1),

@@ -163,6 +163,14 @@ def _finite(name, value):
     return v
 
 
+def _shaped(name, value, shape):
+    v = _num(value)
+    if v.shape != shape:
+        want = "a number" if shape == () else f"{shape[0]} numbers"
+        raise FingerError(f"{name} must be {want}, got {v.tolist()}")
+    return v
+
+
 def _positive(name, value):
     v = _finite(name, value)
     if np.any(v <= 0):
@@ -200,10 +208,12 @@ def validate_finger(finger: Finger) -> None:
         v = _finite(name, getattr(finger, name))
         if v.shape != (2,):
             raise FingerError(f"{name} must be a point (x, z), got {v.tolist()}")
+    for name in ("E", "nu", "shear_coefficient"):
+        _shaped(f"material.{name}", getattr(m, name), ())
     for beam in ("front", "back"):
         sec = getattr(finger, beam)
-        _positive(f"{beam}.thickness", sec.thickness)
-        _positive(f"{beam}.depth", sec.depth)
+        _positive(f"{beam}.thickness", _shaped(f"{beam}.thickness", sec.thickness, ()))
+        _positive(f"{beam}.depth", _shaped(f"{beam}.depth", sec.depth, ()))
     lf, lb = beam_lengths(finger)
     if lf <= 0:
         raise FingerError(f"front beam has zero length: front_base equals tip {finger.tip}")
@@ -277,16 +287,16 @@ def validate_finger(finger: Finger) -> None:
             )
         total = lengths[load.beam]
         if isinstance(load, PointLoad):
-            s = float(_finite(f"{where}.s", load.s))
-            _finite(f"{where}.force", load.force)
-            _finite(f"{where}.moment", load.moment)
+            s = float(_finite(f"{where}.s", _shaped(f"{where}.s", load.s, ())))
+            _finite(f"{where}.force", _shaped(f"{where}.force", load.force, (3,)))
+            _finite(f"{where}.moment", _shaped(f"{where}.moment", load.moment, (3,)))
             if not 0.0 < s <= total:
                 raise FingerError(
                     f"{where}.s = {s} lies outside the {beam_name(load.beam)} beam (0, {total:.6g}]"
                 )
         elif isinstance(load, DistributedLoad):
-            s0, s1 = _finite(f"{where}.s_range", load.s_range).tolist()
-            _finite(f"{where}.total_force", load.total_force)
+            s0, s1 = _finite(f"{where}.s_range", _shaped(f"{where}.s_range", load.s_range, (2,)))
+            _finite(f"{where}.total_force", _shaped(f"{where}.total_force", load.total_force, (3,)))
             if not 0.0 <= s0 < s1 <= total:
                 raise FingerError(
                     f"{where}.s_range = [{s0}, {s1}] must satisfy 0 <= s0 < s1 <= {total:.6g} "

@@ -15,6 +15,7 @@ tangents.
 """
 
 import functools
+import numbers
 from typing import ClassVar
 
 import diffrax as dfx
@@ -44,7 +45,7 @@ class Integrator(eqx.Module):
     unroll: int = eqx.field(static=True, default=1)
 
     def __check_init__(self):
-        if not isinstance(self.steps, int) or self.steps < 1:
+        if not isinstance(self.steps, numbers.Integral) or self.steps < 1:
             raise ValueError(f"Integrator.steps must be a positive integer, got {self.steps!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"Integrator.backend must be one of {BACKENDS}, got {self.backend!r}")

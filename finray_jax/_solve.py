@@ -38,6 +38,8 @@ class SolverOptions(eqx.Module):
     max_continuation_steps: bound on continuation steps (vmapped batches run in lock step).
     min_tangent_cosine: a continuation step is retried at half length when the path's
         tangent turns by more than arccos of this (guards against jumping over folds).
+    max_corrector_steps: a continuation step whose corrector needs more Newton iterations
+        is retried at half length.
     """
 
     rtol: float = eqx.field(static=True, default=1e-10)
@@ -49,13 +51,14 @@ class SolverOptions(eqx.Module):
     max_arc_step: float = eqx.field(static=True, default=0.8)
     max_continuation_steps: int = eqx.field(static=True, default=120)
     min_tangent_cosine: float = eqx.field(static=True, default=0.95)
+    max_corrector_steps: int = eqx.field(static=True, default=8)
 
     def __check_init__(self):
         for name in ("rtol", "atol", "initial_arc_step", "min_arc_step", "max_arc_step"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise ValueError(f"SolverOptions.{name} must be a positive number, got {v!r}")
-        for name in ("max_newton_steps", "max_continuation_steps"):
+        for name in ("max_newton_steps", "max_continuation_steps", "max_corrector_steps"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"SolverOptions.{name} must be a positive integer, got {v!r}")
@@ -110,8 +113,8 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
         )(st.y)
         lu, piv = jax.scipy.linalg.lu_factor(J)
         d = jnp.diagonal(lu)
-        swaps = jnp.sum(piv != jnp.arange(piv.shape[0]))
-        sign = jnp.prod(jnp.sign(d)) * (1.0 - 2.0 * (swaps % 2))
+        swaps = jnp.sum(piv != jnp.arange(piv.shape[0], dtype=piv.dtype))
+        sign = jnp.prod(jnp.sign(d)) * jnp.where(swaps % 2 == 0, 1.0, -1.0)
         dy = jax.scipy.linalg.lu_solve((lu, piv), r)
         y = st.y - dy
         scale = options.atol + options.rtol * jnp.abs(y)
@@ -164,12 +167,13 @@ def _jacobians(problem, y, lam):
 
 
 def _tangent(problem, y, lam, w, t_prev):
-    """Unit tangent of the equilibrium path in (w y, lam), oriented along t_prev."""
+    """Unit tangent of the equilibrium path in (w y, lam), oriented along t_prev, and the
+    sign of det(dr/dy) at (y, lam), which flips exactly at folds of the path."""
     J, Jl = _jacobians(problem, y, lam)
     A = jnp.concatenate([jnp.concatenate([J / w, Jl[:, None]], axis=1), t_prev[None]], axis=0)
     rhs = jnp.zeros(A.shape[0]).at[-1].set(1.0)
     t = jnp.linalg.solve(A, rhs)
-    return t / jnp.linalg.norm(t)
+    return t / jnp.linalg.norm(t), jnp.linalg.slogdet(J)[0]
 
 
 def _arc_fn(z, args):
@@ -181,6 +185,7 @@ def _arc_fn(z, args):
 
 
 class _Arc(eqx.Module):
+    sign: jax.Array  # sign of det(dr/dy) on the branch being traced
     y: jax.Array
     lam: jax.Array
     t: jax.Array
@@ -205,9 +210,9 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
     n = y0.shape[0]
     lam0 = jnp.zeros(())
     e = jnp.zeros(n + 1).at[-1].set(1.0)
-    t_raw = _tangent(problem, y0, lam0, 1.0, e)
+    t_raw, sign0 = _tangent(problem, y0, lam0, 1.0, e)
     w = jnp.abs(t_raw[-1]) / jnp.maximum(jnp.linalg.norm(t_raw[:-1]), 1e-30)
-    t0 = _tangent(problem, y0, lam0, w, e)
+    t0, _ = _tangent(problem, y0, lam0, w, e)
     opts = options
 
     def cond(s: _Arc):
@@ -217,11 +222,18 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         pred = (s.y + s.ds * s.t[:-1] / w, s.lam + s.ds * s.t[-1])
         z, ok, nit = _newton(_arc_fn, pred, (problem, s.y, s.lam, s.t, s.ds, w), opts)
         y1, lam1 = z
-        t1 = _tangent(problem, y1, lam1, w, s.t)
-        # A step that turns the tangent sharply may have jumped across folds: retry shorter.
-        smooth = jnp.dot(t1, s.t) >= opts.min_tangent_cosine
-        folded = ok & smooth & (t1[-1] <= 0.0)
-        accept = ok & smooth & ~folded
+        t1, sign1 = _tangent(problem, y1, lam1, w, s.t)
+        # A step that turns the tangent sharply, or needs many corrector iterations, may
+        # have jumped to another branch: retry shorter. On the traced branch det(dr/dy)
+        # keeps its sign until the fold, where the load factor turns back; a sign change
+        # while the load still rises (or the reverse) is a jump to another branch.
+        smooth = (jnp.dot(t1, s.t) >= opts.min_tangent_cosine) & (
+            nit <= opts.max_corrector_steps
+        )
+        same = sign1 == s.sign
+        rising = t1[-1] > 0.0
+        folded = ok & smooth & ~same & ~rising
+        accept = ok & smooth & same & rising
         reached = accept & (lam1 >= target)
         grow = accept & (nit <= 4) & ~s.near_fold
         ds_new = jnp.where(
@@ -231,6 +243,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         tiny = ds_new < opts.min_arc_step
         keep = accept & ~reached
         return _Arc(
+            sign=s.sign,
             y=jnp.where(keep, y1, s.y),
             lam=jnp.where(keep, lam1, s.lam),
             t=jnp.where(keep, t1, s.t),
@@ -245,19 +258,21 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
             iterations=s.iterations + nit,
         )
 
+    false = jnp.asarray(False)
     init = _Arc(
-        y0,
-        lam0,
-        t0,
-        jnp.asarray(opts.initial_arc_step),
-        jnp.asarray(False),
-        jnp.asarray(False),
-        ~jnp.asarray(active),
-        jnp.asarray(False),
-        y0,
-        lam0,
-        jnp.asarray(0),
-        jnp.asarray(0),
+        sign=sign0,
+        y=y0,
+        lam=lam0,
+        t=t0,
+        ds=jnp.asarray(opts.initial_arc_step),
+        near_fold=false,
+        last_fold=false,
+        done=~jnp.asarray(active),
+        reached=false,
+        y_over=y0,
+        lam_over=lam0,
+        steps=jnp.asarray(0),
+        iterations=jnp.asarray(0),
     )
     return lax.while_loop(cond, body, init)
 
@@ -295,7 +310,8 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
         guess = jnp.where(s.reached, s.y + frac * (s.y_over - s.y), s.y)
         final = _newton_lean(quiet, guess, one, options, active & s.reached)
         code = _fold_result(s)
-        code = RESULTS.where(s.reached & ~final.ok, RESULTS.nonlinear_divergence, code)
+        off_branch = s.reached & (~final.ok | (final.sign != s.sign))
+        code = RESULTS.where(off_branch, RESULTS.nonlinear_divergence, code)
         y = jnp.where(s.reached, final.y, s.y)
         lam = jnp.where(s.reached, one, s.lam)
         return y, lam, code, s.iterations + final.k

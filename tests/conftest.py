@@ -1,10 +1,29 @@
-"""Test configuration: float64 and strict dtype promotion (as in diffrax's test/conftest.py).
-
-Both are set before any test module imports finray_jax, so every test runs in float64 and
-any silent int/float or float32/float64 promotion inside the package raises.
+"""Test configuration (as in diffrax's test/conftest.py): float64 everywhere, strict dtype
+promotion, and slow tests opt-in (--runslow or -m slow).
 """
 
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--runslow",
+        action="store_true",
+        default=False,
+        help="also run tests marked slow (full resolution, limit loads)",
+    )
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked slow are skipped unless --runslow is given or -m asks for them."""
+    markexpr = config.getoption("markexpr", default="") or ""
+    if config.getoption("--runslow") or "slow" in markexpr.replace("not slow", ""):
+        return
+    skip = pytest.mark.skip(reason="slow: run with --runslow (or -m slow)")
+    for item in items:
+        if "slow" in item.keywords:
+            item.add_marker(skip)

@@ -14,9 +14,10 @@ from helpers import bisshopp_drucker, circular_arc
 import finray_jax as fr
 
 # finray_jax/_cantilever.py multiplies an int64 arange by a float64 length (the `s` grid,
-# `jnp.arange(segments)[:, None] * L`), which strict dtype promotion rejects. Until that is
-# fixed the closed-form checks run under standard promotion (test_strict_promotion below
-# keeps the bug visible); every other test module keeps conftest's strict setting.
+# `jnp.arange(segments)[:, None] * L`), which strict dtype promotion rejects (see
+# conftest.py). The closed-form checks run under standard promotion whatever conftest
+# sets, so that they test the physics; test_cantilever_under_strict_promotion keeps the
+# dtype bug visible.
 standard_promotion = jax.numpy_dtype_promotion("standard")
 
 # An effectively inextensible, unshearable rod: a thin band, L = 100 mm, t = 0.01 mm,
@@ -32,6 +33,31 @@ EI = 1.0
 def _tip(sol):
     assert sol.result == optx.RESULTS.successful
     return np.asarray(sol.position[-1])
+
+
+@pytest.mark.parametrize("alpha", [0.5, 1.0, 3.0, 10.0])
+def test_bisshopp_drucker_reference_itself(alpha):
+    """The closed form in helpers.py against an independent shooting solution of
+    theta'' = -alpha cos(theta), theta(0) = 0, theta'(1) = 0 (L = EI = 1), integrated by
+    scipy at rtol 1e-12; and at alpha = 1 against Bisshopp and Drucker's table
+    (x/L = 0.3017, 1 - z/L = 0.0564)."""
+    from scipy import integrate, optimize
+
+    def rhs(s, y):  # y = (theta, theta', x, z)
+        return [y[1], -alpha * np.cos(y[0]), np.sin(y[0]), np.cos(y[0])]
+
+    def shoot(c):
+        return integrate.solve_ivp(
+            rhs, (0.0, 1.0), [0.0, c, 0.0, 0.0], method="DOP853", rtol=1e-13, atol=1e-14
+        ).y[:, -1]
+
+    # theta'(0) = alpha z(L) lies in (0, alpha]; theta'(1) < 0 at 0 and >= 0 at alpha.
+    c = optimize.brentq(lambda c: shoot(c)[1], 1e-9, alpha, xtol=1e-15)
+    theta, _, x, z = shoot(c)
+    xr, zr, phi0 = bisshopp_drucker(alpha)
+    assert abs(xr - x) < 1e-9 and abs(zr - z) < 1e-9 and abs(phi0 - theta) < 1e-9
+    if alpha == 1.0:
+        assert round(xr, 4) == 0.3017 and round(1.0 - zr, 4) == 0.0564
 
 
 @pytest.mark.parametrize("alpha", [0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0])
@@ -53,8 +79,9 @@ def test_elastica_tip_force_spatial(alpha):
     P = alpha * EI / L**2
     x, z, _ = bisshopp_drucker(alpha)
     with standard_promotion:
-        tip = _tip(fr.solve_cantilever(L, STEEL_LIKE, THIN, tip_force=(P, 0.0, 0.0),
-                                       mode="spatial"))
+        tip = _tip(
+            fr.solve_cantilever(L, STEEL_LIKE, THIN, tip_force=(P, 0.0, 0.0), mode="spatial")
+        )
     assert abs(tip[0] / L - x) < 1e-6 * x
     assert abs(tip[2] / L - z) < 1e-6 * z
     assert abs(tip[1]) < 1e-12 * L
@@ -70,8 +97,9 @@ def test_elastica_out_of_plane_square_section(alpha):
     P = alpha * EI / L**2
     x, z, _ = bisshopp_drucker(alpha)
     with standard_promotion:
-        tip = _tip(fr.solve_cantilever(L, material, square, tip_force=(0.0, P, 0.0),
-                                       mode="spatial"))
+        tip = _tip(
+            fr.solve_cantilever(L, material, square, tip_force=(0.0, P, 0.0), mode="spatial")
+        )
     assert abs(tip[1] / L - x) < 1e-6 * x
     assert abs(tip[2] / L - z) < 1e-6 * z
     assert abs(tip[0]) < 1e-12 * L
@@ -103,8 +131,16 @@ def test_tsit5_converges_at_fifth_order():
 
     def tip(n):
         with standard_promotion:
-            return _tip(fr.solve_cantilever(L, STEEL_LIKE, THIN, tip_force=(P, 0.0, 0.0),
-                                            segments=1, integrator=fr.Integrator(steps=n)))
+            return _tip(
+                fr.solve_cantilever(
+                    L,
+                    STEEL_LIKE,
+                    THIN,
+                    tip_force=(P, 0.0, 0.0),
+                    segments=1,
+                    integrator=fr.Integrator(steps=n),
+                )
+            )
 
     ref = tip(64)  # its own error is ~(8/64)^5 = 3e-5 of the n = 8 error
     ns = [2, 4, 8]
@@ -126,17 +162,23 @@ def test_timoshenko_shear_deflection():
     shear_part = P * length / float(kga) / expected
     assert shear_part > 0.1  # the test would see a wrong k or a missing shear term
     with standard_promotion:
-        tip = _tip(fr.solve_cantilever(length, material, fr.Section(t, d),
-                                       tip_force=(P, 0.0, 0.0)))
+        tip = _tip(fr.solve_cantilever(length, material, fr.Section(t, d), tip_force=(P, 0.0, 0.0)))
     # 1e-5: 100x the nonlinear correction; a 1 % error in the shear term is 1e-3.
     assert abs(tip[0] - expected) < 1e-5 * expected
     assert abs(tip[1]) == 0.0
 
 
-def test_strict_promotion():
-    """solve_cantilever must run under strict dtype promotion (house style, conftest)."""
+def test_cantilever_under_strict_promotion():
+    """solve_cantilever must run under strict dtype promotion (house style)."""
     # One segment of two steps keeps the extra (strict-mode) compilation small.
-    sol = fr.solve_cantilever(L, STEEL_LIKE, THIN, tip_force=(1e-4, 0.0, 0.0), segments=1,
-                              integrator=fr.Integrator(steps=2))
+    with jax.numpy_dtype_promotion("strict"):
+        sol = fr.solve_cantilever(
+            L,
+            STEEL_LIKE,
+            THIN,
+            tip_force=(1e-4, 0.0, 0.0),
+            segments=1,
+            integrator=fr.Integrator(steps=2),
+        )
     assert sol.result == optx.RESULTS.successful
     assert sol.s.dtype == np.float64

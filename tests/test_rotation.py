@@ -111,7 +111,5 @@ def test_planar_frame_convention(theta):
     np.testing.assert_allclose(d2, [0.0, 1.0, 0.0], atol=0)
     np.testing.assert_allclose(np.cross(d2, d3), d1, atol=EXACT)
     # It is the exponential of theta about +y, and planar_angle recovers theta from d3.
-    np.testing.assert_allclose(
-        R, np.asarray(exp_so3(jnp.asarray([0.0, theta, 0.0]))), atol=EXACT
-    )
+    np.testing.assert_allclose(R, np.asarray(exp_so3(jnp.asarray([0.0, theta, 0.0]))), atol=EXACT)
     assert abs(float(planar_angle(jnp.asarray([d3[0], d3[2]]))) - theta) < EXACT
