@@ -92,6 +92,7 @@ def _newton(fn, y0, args, options: SolverOptions):
 
 class _Newton(eqx.Module):
     y: jax.Array
+    step: jax.Array  # scaled size of the last Newton step
     k: jax.Array
     done: jax.Array
     ok: jax.Array
@@ -104,7 +105,10 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
 
     Besides the root it returns the sign of det(J) at the first and the last iterate (free
     from the LU factors), which tells whether the root lies on the branch of the start.
-    Converged when both the step and the residual are below atol + rtol |y| (scaled).
+    Converged when the step and the residual are below atol + rtol |y| (scaled), or when
+    Newton is in its quadratic regime and the predicted next step, step_k^3 / step_(k-1)^2,
+    is below that: this saves the iteration that would only confirm convergence. (The
+    residual reported in the Solution is always evaluated at the returned point.)
     """
 
     def body(st: _Newton):
@@ -119,10 +123,15 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
         y = st.y - dy
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))
-        conv = (jnp.max(jnp.abs(dy) / scale) < 1.0) & (jnp.max(jnp.abs(r)) < options.atol)
+        step = jnp.max(jnp.abs(dy) / scale)
+        conv = (step < 1.0) & (jnp.max(jnp.abs(r)) < options.atol)
+        contracting = (st.k > 0) & (step < 1e-2 * st.step)
+        predicted = step**3 / jnp.maximum(st.step, 1e-300) ** 2
+        conv = conv | (contracting & (predicted < 1e-2) & (jnp.max(jnp.abs(dy)) < 1e-4))
         k = st.k + 1
         return _Newton(
             y=y,
+            step=step,
             k=k,
             done=conv | ~finite | (k >= options.max_newton_steps),
             ok=conv & finite,
@@ -132,6 +141,7 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
 
     init = _Newton(
         y0,
+        jnp.asarray(jnp.inf),
         jnp.asarray(0),
         ~jnp.asarray(active),
         jnp.asarray(False),
