@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._finger import BACK, FRONT, Finger, PointLoad, torsion_constant
-from ._rod import rod_model, segment_flow, segment_trajectories
+from ._rod import TAPER_NODES, rod_model, segment_flow, segment_trajectories
 
 # Event kinds on a beam, in the order used to break ties at equal arc length.
 _KIND_ORDER = {"dist_end": 0, "cb": 1, "point": 2, "dist_start": 3}
@@ -34,6 +34,7 @@ class Topology:
     base_kinds: tuple[str, str]
     n_crossbeams: int
     events: tuple[tuple[tuple[str, int], ...], ...]  # per beam, ordered (kind, index)
+    tapered: bool = False  # a main beam's section varies along s
 
     @property
     def n_beams(self):
@@ -65,7 +66,7 @@ class Topology:
 
     @property
     def model(self):
-        return rod_model(self.mode)
+        return rod_model(self.mode, self.tapered)
 
     @functools.cached_property
     def index(self) -> "_Index":
@@ -166,7 +167,10 @@ def build_topology(finger: Finger, mode: str) -> Topology:
         key = lambda e, b=b: (float(_event_s(finger, b, *e)), _KIND_ORDER[e[0]], e[1])
         events.append(tuple(sorted(evs, key=key)))
     ad = finger.adaptor
-    return Topology(mode, (ad.front_base, ad.back_base), finger.n_crossbeams, tuple(events))
+    tapered = finger.front.tip_thickness is not None or finger.back.tip_thickness is not None
+    return Topology(
+        mode, (ad.front_base, ad.back_base), finger.n_crossbeams, tuple(events), tapered
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -215,33 +219,38 @@ class SegmentTable(eqx.Module):
     start_s: jax.Array  # (S,)
     length: jax.Array  # (S,)
     rigid: jax.Array  # (S,) length held rigidly by an adaptor clamp
-    stiffness: jax.Array  # (S, 6): kGA1, kGA2, EA, EI1, EI2, GJ
+    stiffness: jax.Array  # (S, 4, 6): kGA1, kGA2, EA, EI1, EI2, GJ at TAPER_NODES
     force: jax.Array  # (S, 3) distributed force per length (at load factor 1)
     precurvature: jax.Array  # (S, 3)
     theta: jax.Array  # (S,) undeformed frame angle
     point: jax.Array  # (S, 3) undeformed start point
 
 
-def _section_stiffness(finger: Finger, thickness, depth):
-    m = finger.material
-    E, G, k = m.E, m.G, m.shear_coefficient
+def section_stiffness(material, thickness, depth, torsion: str):
+    """(..., 6) kGA1, kGA2, EA, EI1, EI2, GJ of a rectangle (thickness in plane)."""
+    E, G, k = material.E, material.G, material.shear_coefficient
     A = thickness * depth
     I1 = thickness * depth**3 / 12.0  # about d1: out of plane
     I2 = depth * thickness**3 / 12.0  # about d2: in plane
-    J = torsion_constant(thickness, depth, finger.torsion)
+    J = torsion_constant(thickness, depth, torsion)
     return jnp.stack([k * G * A, k * G * A, E * A, E * I1, E * I2, G * J], axis=-1)
 
 
+def _thickness_depth(finger: Finger, geo: Geometry, beam: int, s):
+    """Thickness (linear from base to tip when tip_thickness is set) and depth at s."""
+    if beam >= 2:
+        cb = finger.crossbeams
+        return cb.thickness[beam - 2] * jnp.ones_like(s), cb.depth[beam - 2]
+    sec = finger.front if beam == FRONT else finger.back
+    if sec.tip_thickness is None:
+        return sec.thickness * jnp.ones_like(s), sec.depth
+    frac = s / geo.length[beam]
+    return sec.thickness + (sec.tip_thickness - sec.thickness) * frac, sec.depth
+
+
 def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable:
-    cb = finger.crossbeams
     ad = finger.adaptor
-    stiff_beam = jnp.concatenate(
-        [
-            _section_stiffness(finger, finger.front.thickness, finger.front.depth)[None],
-            _section_stiffness(finger, finger.back.thickness, finger.back.depth)[None],
-            _section_stiffness(finger, cb.thickness, cb.depth).reshape(-1, 6),
-        ]
-    )
+    stiffness = []
     clamp = [ad.front_clamp_length, ad.back_clamp_length] + [jnp.zeros(())] * topo.n_crossbeams
     starts, ends, rigid, force, beams = [], [], [], [], []
     for b, evs in enumerate(topo.events):
@@ -257,7 +266,11 @@ def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable
             s0, s1 = cuts[k], cuts[k + 1]
             starts.append(s0)
             ends.append(s1)
-            rigid.append(jnp.clip(clamp[b] - s0, 0.0, s1 - s0))
+            r = jnp.clip(clamp[b] - s0, 0.0, s1 - s0)
+            rigid.append(r)
+            nodes = s0 + r + jnp.asarray(TAPER_NODES) * (s1 - s0 - r)
+            t, d = _thickness_depth(finger, geo, b, nodes)
+            stiffness.append(section_stiffness(finger.material, t, d, finger.torsion))
             f = jnp.zeros(3)
             for j in active:
                 f = f + finger.loads[j].force_per_length
@@ -271,7 +284,7 @@ def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable
         start_s=start_s,
         length=jnp.stack(ends) - start_s,
         rigid=jnp.stack(rigid),
-        stiffness=stiff_beam[beams],
+        stiffness=jnp.stack(stiffness),
         force=jnp.stack(force),
         precurvature=jnp.zeros((len(beams), 3)),
         theta=theta,

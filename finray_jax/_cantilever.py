@@ -5,8 +5,16 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._finger import Material, Section, torsion_constant
-from ._rod import Integrator, PlanarRod, SpatialRod, segment_flow, segment_trajectories
+from ._assembly import SegmentTable, section_stiffness
+from ._finger import Material, Section
+from ._rod import (
+    TAPER_NODES,
+    Integrator,
+    PlanarRod,
+    rod_model,
+    segment_flow,
+    segment_trajectories,
+)
 from ._types import as_float, check_x64
 
 
@@ -20,18 +28,11 @@ class CantileverSolution(eqx.Module):
     max_residual: jax.Array
 
 
-def _stiffness(material: Material, section: Section, torsion: str):
-    E, G, k = material.E, material.G, material.shear_coefficient
-    t, d = section.thickness, section.depth
-    A = t * d
-    J = torsion_constant(t, d, torsion)
-    return jnp.stack([k * G * A, k * G * A, E * A, E * t * d**3 / 12, E * d * t**3 / 12, G * J])
-
-
 @eqx.filter_jit
-def _solve(model, integrator, q, tip_force, tip_moment, segments):
+def _solve(model, integrator, Q, tip_force, tip_moment):
     """Clamp at the origin along +z; end wrench given in the world frame."""
-    if model is PlanarRod:
+    segments = Q.shape[0]
+    if isinstance(model, PlanarRod):
         y0 = jnp.zeros(6)
         unknown = jnp.zeros(3)  # (nx, nz, my) at the base
 
@@ -52,9 +53,9 @@ def _solve(model, integrator, q, tip_force, tip_moment, segments):
     def chain(u):
         y = start(u)
         ys = []
-        for _ in range(segments):
+        for k in range(segments):
             ys.append(y)
-            y = segment_flow(model, integrator, y[None], q[None])[0]
+            y = segment_flow(model, integrator, y[None], Q[k][None])[0]
         return y, jnp.stack(ys)
 
     def fn(u, _):
@@ -64,9 +65,7 @@ def _solve(model, integrator, q, tip_force, tip_moment, segments):
         fn, optx.Newton(rtol=1e-13, atol=1e-13), unknown, None, max_steps=60, throw=False
     )
     _, starts = chain(sol.value)
-    traj = segment_trajectories(
-        model, integrator, starts, jnp.broadcast_to(q, (segments,) + q.shape)
-    )
+    traj = segment_trajectories(model, integrator, starts, Q)
     return traj, sol.result, jnp.max(jnp.abs(fn(sol.value, None)))
 
 
@@ -86,7 +85,8 @@ def solve_cantilever(
     moment (N mm) in the world frame, solved by shooting on the base wrench.
 
     The rod is cut into `segments` equal segments, each integrated at integrator.steps
-    fixed steps, so the total number of steps is segments * steps.
+    fixed steps, so the total number of steps is segments * steps. A section with
+    tip_thickness tapers linearly from the clamp to the free end.
     """
     check_x64("solve_cantilever")
     length = as_float(length)
@@ -94,28 +94,29 @@ def solve_cantilever(
         raise ValueError(f"length must be positive, got {float(length)}")
     if mode not in ("planar", "spatial"):
         raise ValueError(f"mode must be 'planar' or 'spatial', got {mode!r}")
-    model = PlanarRod if mode == "planar" else SpatialRod
-    k = _stiffness(material, section, torsion)
+    model = rod_model(mode, section.tip_thickness is not None)
     L = length / segments
-    z3 = jnp.zeros(3)
-    from ._assembly import SegmentTable
-
+    start_s = jnp.arange(segments, dtype=L.dtype) * L
+    nodes = start_s[:, None] + jnp.asarray(TAPER_NODES)[None] * L
+    t = section.thickness * jnp.ones_like(nodes)
+    if section.tip_thickness is not None:
+        t = t + (section.tip_thickness - section.thickness) * nodes / length
+    z3 = jnp.zeros((segments, 3))
     table = SegmentTable(
-        start_s=jnp.zeros(1),
-        length=L[None],
-        rigid=jnp.zeros(1),
-        stiffness=k[None],
-        force=z3[None],
-        precurvature=z3[None],
-        theta=jnp.zeros(1),
-        point=z3[None],
+        start_s=start_s,
+        length=jnp.full(segments, L),
+        rigid=jnp.zeros(segments),
+        stiffness=section_stiffness(material, t, section.depth, torsion),
+        force=z3,
+        precurvature=z3,
+        theta=jnp.zeros(segments),
+        point=z3,
     )
-    q = model.pack(table)[0]
     traj, result, res = _solve(
-        model, integrator, q, as_float(tip_force), as_float(tip_moment), segments
+        model, integrator, model.pack(table), as_float(tip_force), as_float(tip_moment)
     )
     steps = integrator.steps
-    s = jnp.arange(segments, dtype=L.dtype)[:, None] * L + jnp.linspace(0.0, 1.0, steps + 1)[None] * L
+    s = start_s[:, None] + jnp.linspace(0.0, 1.0, steps + 1)[None] * L
     st = traj.reshape(-1, traj.shape[-1])
     return CantileverSolution(
         s=s.reshape(-1),

@@ -32,11 +32,21 @@ class Material(eqx.Module):
         return self.E / (2.0 * (1.0 + self.nu))
 
 
+def _optional_float(x):
+    return None if x is None else as_float(x)
+
+
 class Section(eqx.Module):
-    """Rectangular cross-section: thickness in the finger plane, depth out of plane (mm)."""
+    """Rectangular cross-section: thickness in the finger plane, depth out of plane (mm).
+
+    tip_thickness: for a main beam, the thickness at its tip; the thickness then varies
+    linearly from `thickness` at the base (None: constant). Setting it (or not) is part of
+    the topology: it selects the varying-section rod parameters.
+    """
 
     thickness: Float[Array, ""] = eqx.field(converter=as_float)
     depth: Float[Array, ""] = eqx.field(converter=as_float)
+    tip_thickness: Float[Array, ""] | None = eqx.field(converter=_optional_float, default=None)
 
 
 class Crossbeams(eqx.Module):
@@ -213,6 +223,9 @@ def validate_finger(finger: Finger) -> None:
     for beam in ("front", "back"):
         sec = getattr(finger, beam)
         _positive(f"{beam}.thickness", _shaped(f"{beam}.thickness", sec.thickness, ()))
+        if sec.tip_thickness is not None:
+            name = f"{beam}.tip_thickness"
+            _positive(name, _shaped(name, sec.tip_thickness, ()))
         _positive(f"{beam}.depth", _shaped(f"{beam}.depth", sec.depth, ()))
     lf, lb = beam_lengths(finger)
     if lf <= 0:

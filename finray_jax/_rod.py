@@ -60,15 +60,34 @@ class Integrator(eqx.Module):
 BACKENDS = ("tableau", "step", "diffeqsolve")
 
 
-def _rk_step(tableau, rhs, y, h):
-    """One explicit Runge-Kutta step from a diffrax Butcher tableau (autonomous rhs)."""
+def _rk_step(tableau, rhs, t, y, h):
+    """One explicit Runge-Kutta step of dy/dt = rhs(t, y) from a diffrax Butcher tableau."""
     b = np.asarray(tableau.b_sol)
+    c = np.asarray(tableau.c)
     n_stages = int(np.max(np.nonzero(b)[0])) + 1  # stages past the last weight are unused
-    ks = [rhs(y)]
+    ks = [rhs(t, y)]
     for i in range(1, n_stages):
         a = np.asarray(tableau.a_lower[i - 1])
-        ks.append(rhs(y + h * sum(float(aj) * k for aj, k in zip(a, ks) if aj != 0.0)))
+        yi = y + h * sum(float(aj) * k for aj, k in zip(a, ks) if aj != 0.0)
+        ks.append(rhs(t + float(c[i - 1]) * h, yi))
     return y + h * sum(float(bi) * k for bi, k in zip(b, ks) if bi != 0.0)
+
+
+# Sample points (in the flexible part of a segment, tau in [0, 1]) of a varying section.
+TAPER_NODES = np.array([0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0])
+
+
+def _lagrange_weights(tau):
+    """Cubic Lagrange weights at TAPER_NODES: exact for stiffnesses cubic in tau."""
+    x = TAPER_NODES
+    w = []
+    for i in range(4):
+        wi = 1.0
+        for j in range(4):
+            if j != i:
+                wi = wi * (tau - x[j]) / (x[i] - x[j])
+        w.append(wi)
+    return jnp.stack(w)
 
 
 # --------------------------------------------------------------------------------------
@@ -78,12 +97,17 @@ def _rk_step(tableau, rhs, y, h):
 
 
 class AbstractRodModel(eqx.Module):
-    """Interface of a rod model (a family of interchangeable implementations)."""
+    """Interface of a rod model (a family of interchangeable implementations).
 
+    tapered: the section varies along s; each segment then carries its stiffnesses at the
+    four TAPER_NODES and the rhs interpolates them (static: it fixes the parameter size).
+    """
+
+    tapered: bool = eqx.field(static=True, default=False)
     name: ClassVar[str]
     n_unknown: ClassVar[int]  # unknowns per segment start state
     n_full: ClassVar[int]  # integrated state size
-    n_param: ClassVar[int]  # segment parameter row size
+    n_stiff: ClassVar[int]  # stiffness entries per sample
     n_kin: ClassVar[int]  # kinematic equations of a clamp (position + orientation)
     n_wrench: ClassVar[int]  # wrench equations of a free end
 
@@ -91,37 +115,35 @@ class AbstractRodModel(eqx.Module):
 class PlanarRod(AbstractRodModel):
     """Planar Cosserat rod in the x-z plane: state (x, z, theta, nx, nz, my).
 
-    Parameters q = (length, rigid, kGA, EA, EI, fx, fz, u2*), where EI is the in-plane
-    bending stiffness (about d2 = y) and (fx, fz) the distributed force per length.
+    Parameters q = (length, rigid, fx, fz, u2*, then (kGA, EA, EI) per stiffness sample),
+    where EI is the in-plane bending stiffness (about d2 = y) and (fx, fz) the distributed
+    force per length.
     """
 
     name: ClassVar[str] = "planar"
     n_unknown: ClassVar[int] = 6
     n_full: ClassVar[int] = 6
-    n_param: ClassVar[int] = 8
+    n_stiff: ClassVar[int] = 3
     n_kin: ClassVar[int] = 3
     n_wrench: ClassVar[int] = 3
 
-    @staticmethod
-    def pack(table):
-        return jnp.stack(
+    def pack(self, table):
+        head = jnp.stack(
             [
                 table.length,
                 table.rigid,
-                table.stiffness[:, 0],
-                table.stiffness[:, 2],
-                table.stiffness[:, 4],
                 table.force[:, 0],
                 table.force[:, 2],
                 table.precurvature[:, 1],
             ],
             axis=-1,
         )
+        return jnp.concatenate([head, _stiffness_rows(self, table, (0, 2, 4))], axis=-1)
 
-    @staticmethod
-    def rhs(y, q):
+    def rhs(self, tau, y, q):
         _, _, th, nx, nz, my = y
-        kga, ea, ei, fx, fz, u2s = q[2], q[3], q[4], q[5], q[6], q[7]
+        fx, fz, u2s = q[2], q[3], q[4]
+        kga, ea, ei = _stiffness_at(self, q[5:], tau)
         c, s = jnp.cos(th), jnp.sin(th)
         n1 = c * nx - s * nz
         n3 = s * nx + c * nz
@@ -136,7 +158,7 @@ class PlanarRod(AbstractRodModel):
     @staticmethod
     def rigid_transport(y, q):
         x, z, th, nx, nz, my = y
-        r, fx, fz = q[1], q[5], q[6]
+        r, fx, fz = q[1], q[2], q[3]
         tx, tz = jnp.sin(th), jnp.cos(th)
         # n(r) = n0 - f r;  m(r) = m0 - t x (n0 r - f r^2 / 2)  (y-component)
         ax = nx * r - 0.5 * fx * r * r
@@ -209,36 +231,27 @@ class SpatialRod(AbstractRodModel):
     """3-D Cosserat rod: state (p, R, n, m) with R stored row-major (18 numbers).
 
     The start frame is an unknown rotation vector phi relative to the segment's undeformed
-    frame: R0 = R_ref exp(hat(phi)). Parameters q = (length, rigid, kGA1, kGA2, EA, EI1,
-    EI2, GJ, f (3), u* (3)).
+    frame: R0 = R_ref exp(hat(phi)). Parameters q = (length, rigid, f (3), u* (3), then
+    (kGA1, kGA2, EA, EI1, EI2, GJ) per stiffness sample).
     """
 
     name: ClassVar[str] = "spatial"
     n_unknown: ClassVar[int] = 12
     n_full: ClassVar[int] = 18
-    n_param: ClassVar[int] = 14
+    n_stiff: ClassVar[int] = 6
     n_kin: ClassVar[int] = 6
     n_wrench: ClassVar[int] = 6
 
-    @staticmethod
-    def pack(table):
-        return jnp.concatenate(
-            [
-                table.length[:, None],
-                table.rigid[:, None],
-                table.stiffness,
-                table.force,
-                table.precurvature,
-            ],
-            axis=-1,
-        )
+    def pack(self, table):
+        head = [table.length[:, None], table.rigid[:, None], table.force, table.precurvature]
+        return jnp.concatenate(head + [_stiffness_rows(self, table, range(6))], axis=-1)
 
-    @staticmethod
-    def rhs(y, q):
+    def rhs(self, tau, y, q):
         R = y[3:12].reshape(3, 3)
         n, m = y[12:15], y[15:18]
-        kse, kbt, ustar = q[2:5], q[5:8], q[11:14]
-        f = q[8:11]
+        f, ustar = q[2:5], q[5:8]
+        k = _stiffness_at(self, q[8:], tau)
+        kse, kbt = k[0:3], k[3:6]
         v = (R.T @ n) / kse + jnp.array([0.0, 0.0, 1.0])
         u = (R.T @ m) / kbt + ustar
         dp = R @ v
@@ -249,7 +262,7 @@ class SpatialRod(AbstractRodModel):
     def rigid_transport(y, q):
         p, Rf = y[0:3], y[3:12]
         n, m = y[12:15], y[15:18]
-        r, f = q[1], q[8:11]
+        r, f = q[1], q[2:5]
         t = Rf.reshape(3, 3)[:, 2]
         a = n * r - 0.5 * f * r * r
         return jnp.concatenate([p + t * r, Rf, n - f * r, m - jnp.cross(t, a)])
@@ -314,8 +327,23 @@ class SpatialRod(AbstractRodModel):
         return jnp.concatenate([point, jnp.stack([z, z, z, z, z, z, z, z, z])])
 
 
-def rod_model(mode: str) -> type[AbstractRodModel]:
-    return {"planar": PlanarRod, "spatial": SpatialRod}[mode]
+def rod_model(mode: str, tapered: bool = False) -> AbstractRodModel:
+    return {"planar": PlanarRod, "spatial": SpatialRod}[mode](tapered=tapered)
+
+
+def _stiffness_rows(model, table, columns):
+    """(S, samples * n_stiff) stiffness part of the parameter rows."""
+    k = table.stiffness[:, :, list(columns)]  # (S, 4, n_stiff): samples at TAPER_NODES
+    if not model.tapered:
+        k = k[:, :1]
+    return k.reshape(k.shape[0], -1)
+
+
+def _stiffness_at(model, flat, tau):
+    if not model.tapered:
+        return flat
+    samples = flat.reshape(4, model.n_stiff)
+    return _lagrange_weights(tau) @ samples
 
 
 # --------------------------------------------------------------------------------------
@@ -327,7 +355,7 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
     """Integrate one segment: closed-form rigid part, then fixed-step RK in tau in [0, 1]."""
     y = model.rigid_transport(y0, q)
     flex = q[0] - q[1]
-    term = dfx.ODETerm(lambda t, yy, args: flex * model.rhs(yy, args))
+    term = dfx.ODETerm(lambda t, yy, args: flex * model.rhs(t, yy, args))
     n = integrator.steps
     h = 1.0 / n
     if integrator.backend == "diffeqsolve":
@@ -350,13 +378,13 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
         return sol.ys if save_all else sol.ys[-1]
     solver = integrator.solver
     if integrator.backend == "tableau":
-        f = lambda yy: flex * model.rhs(yy, q)
+        f = lambda t, yy: flex * model.rhs(t, yy, q)
 
         def rk(yy, i):
-            y1 = _rk_step(solver.tableau, f, yy, h)
+            y1 = _rk_step(solver.tableau, f, i * h, yy, h)
             return y1, (y1 if save_all else None)
 
-        y_end, ys = lax.scan(rk, y, None, length=n, unroll=integrator.unroll)
+        y_end, ys = lax.scan(rk, y, jnp.arange(n, dtype=q.dtype), unroll=integrator.unroll)
         if save_all:
             return jnp.concatenate([y[None], ys], axis=0)
         return y_end

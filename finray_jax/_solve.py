@@ -237,9 +237,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         # have jumped to another branch: retry shorter. On the traced branch det(dr/dy)
         # keeps its sign until the fold, where the load factor turns back; a sign change
         # while the load still rises (or the reverse) is a jump to another branch.
-        smooth = (jnp.dot(t1, s.t) >= opts.min_tangent_cosine) & (
-            nit <= opts.max_corrector_steps
-        )
+        smooth = (jnp.dot(t1, s.t) >= opts.min_tangent_cosine) & (nit <= opts.max_corrector_steps)
         same = sign1 == s.sign
         rising = t1[-1] > 0.0
         folded = ok & smooth & ~same & ~rising

@@ -312,13 +312,13 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     front = r.table(
         doc["front"],
         "front",
-        ("base", "tip", "thickness", "depth"),
+        ("base", "tip", "thickness", "depth", "tip_thickness"),
         required=("base", "tip", "thickness", "depth"),
     )
     back = r.table(
         doc["back"],
         "back",
-        ("base", "thickness", "depth"),
+        ("base", "thickness", "depth", "tip_thickness"),
         required=("base", "thickness", "depth"),
         hints={"tip": "the two beams share one tip: give it once, as front.tip"},
     )
@@ -327,9 +327,11 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     back_base = r.vector(back["base"], "back.base", 2, "a point [x, z]")
     sections = {}
     for beam, tbl in (("front", front), ("back", back)):
+        tip_t = tbl.get("tip_thickness")
         sections[beam] = Section(
             r.number(tbl["thickness"], f"{beam}.thickness", positive=True),
             r.number(tbl["depth"], f"{beam}.depth", positive=True),
+            None if tip_t is None else r.number(tip_t, f"{beam}.tip_thickness", positive=True),
         )
 
     # crossbeams
@@ -610,6 +612,12 @@ def _ts(s: str) -> str:
     return json.dumps(s, ensure_ascii=False)
 
 
+def _tip_thickness_line(section):
+    if section.tip_thickness is None:
+        return []
+    return [f"tip_thickness = {_tf(section.tip_thickness)}"]
+
+
 def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str:
     """A finger (and optionally its solve settings) as a finger file.
 
@@ -643,6 +651,7 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
         f"tip = {_tv(finger.tip)}",
         f"thickness = {_tf(finger.front.thickness)}",
         f"depth = {_tf(finger.front.depth)}",
+        *_tip_thickness_line(finger.front),
         "",
     ]
     out += [
@@ -650,6 +659,7 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
         f"base = {_tv(finger.back_base)}",
         f"thickness = {_tf(finger.back.thickness)}",
         f"depth = {_tf(finger.back.depth)}",
+        *_tip_thickness_line(finger.back),
         "",
     ]
     ad = finger.adaptor

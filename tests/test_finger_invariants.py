@@ -468,3 +468,23 @@ def test_limit_load(case, bounds):
     assert bounds[0] < float(lim.load_factor) * magnitude < bounds[1]
     assert _finite(lim.solution)
     _assert_balanced(finger, lim.solution, float(lim.load_factor))
+
+
+def test_tapered_main_beams(sol_l1):
+    """A taper whose tip equals its base reproduces the constant section (the varying-
+    section path interpolates four equal samples: to rounding); a real taper (front 2.0 ->
+    1.0 mm) converges, balances, and its tip moves between those of uniform 1.0 mm and
+    2.0 mm front beams."""
+    base = _ref("L1")
+    same = _replace(base, front=fr.Section(1.5, 20.0, tip_thickness=1.5))
+    sol_same = _solve_ok(same)
+    for (name, a), (_, b) in zip(_beams(sol_l1), _beams(sol_same)):
+        np.testing.assert_allclose(np.asarray(b.position), np.asarray(a.position), atol=1e-10)
+
+    tapered = _replace(base, front=fr.Section(2.0, 20.0, tip_thickness=1.0))
+    sol_t = _solve_ok(tapered)  # same topology as `same`: no new compile
+    _assert_balanced(tapered, sol_t)
+    thin = _solve_ok(_replace(base, front=fr.Section(1.0, 20.0)))
+    thick = _solve_ok(_replace(base, front=fr.Section(2.0, 20.0)))
+    dx = lambda s: float(s.tip.displacement[0])
+    assert dx(thick) < dx(sol_t) < dx(thin)

@@ -537,7 +537,7 @@ def test_round_trip_everything():
         front_base=(1.0, -2.0),
         back_base=(35.5, 0.25),
         tip=(3.0, 90.0),
-        front=fr.Section(2.0, 15.0),
+        front=fr.Section(2.0, 15.0, tip_thickness=1.25),
         back=fr.Section(1.75, 15.0),
         crossbeams=fr.Crossbeams(
             [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
