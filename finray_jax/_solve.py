@@ -1,5 +1,7 @@
 """Newton shooting with load continuation, fold detection and the limit load."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -304,12 +306,38 @@ def _nograd(tree):
     return jax.tree_util.tree_map(lambda x: lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
+def _direct(quiet: Problem, y_start, options):
+    """Newton at full load; accepted when it converges on the branch it started from (the
+    same sign of det J at the first and the last iterate: no fold crossed)."""
+    direct = _newton_lean(quiet, y_start, jnp.ones(()), options)
+    return direct, direct.ok & (direct.sign == direct.sign_first)
+
+
+def _start(problem, init):
+    y_und = problem.undeformed().reshape(-1)
+    return y_und, (y_und if init is None else lax.stop_gradient(init))
+
+
 @eqx.filter_jit
-def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
+def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init):
+    """Only the direct Newton solve (compiles in about half the time of `_solve_core`);
+    `solve_finger` falls back to the continuation when it is not accepted."""
     problem = _make_problem(topo, integrator, finger)
     quiet = _nograd(problem)
-    y_und = quiet.undeformed().reshape(-1)
-    y_start = y_und if init is None else lax.stop_gradient(init)
+    _, y_start = _start(quiet, init)
+    direct, ok = _direct(quiet, y_start, options)
+    one = jnp.ones(())
+    y = _attach_implicit_gradient(problem, one, direct.y)
+    code = RESULTS.where(ok, RESULTS.successful, RESULTS.nonlinear_divergence)
+    return _outputs(problem, y, one, code, direct.k), ok
+
+
+@eqx.filter_jit
+def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
+    """Direct Newton, else arc-length continuation, all traced (for jit, vmap, grad)."""
+    problem = _make_problem(topo, integrator, finger)
+    quiet = _nograd(problem)
+    y_und, y_start = _start(quiet, init)
     one = jnp.ones(())
 
     def continuation(active):
@@ -325,10 +353,7 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
         return y, lam, code, s.iterations + final.k
 
     if options.direct_first:
-        # Newton at full load; accepted when it converges on the branch it started from
-        # (same sign of det J at the first and last iterate: no fold crossed).
-        direct = _newton_lean(quiet, y_start, one, options)
-        direct_ok = direct.ok & (direct.sign == direct.sign_first)
+        direct, direct_ok = _direct(quiet, y_start, options)
         y, lam_end, code, nit_c = lax.cond(
             direct_ok,
             lambda: (direct.y, one, RESULTS.successful, jnp.asarray(0)),
@@ -475,7 +500,17 @@ def solve_finger(
     """
     topo = prepare(finger, mode, topology)
     y0 = None if init is None else init.unknowns
-    sol = _solve_core(topo, integrator, options, finger, y0)
+    if options.direct_first and _is_concrete((finger, y0)):
+        # Called eagerly: compile and run the direct solve alone, and compile the
+        # continuation only for fingers that need it.
+        sol, ok = _direct_core(topo, integrator, options, finger, y0)
+        if not bool(ok):
+            cont = dataclasses.replace(options, direct_first=False)
+            failed_its = sol.iterations
+            sol = _solve_core(topo, integrator, cont, finger, None)
+            sol = eqx.tree_at(lambda x: x.iterations, sol, sol.iterations + failed_its)
+    else:
+        sol = _solve_core(topo, integrator, options, finger, y0)
     if throw and sol.result != RESULTS.successful:
         raise RuntimeError(f"solve_finger: {sol.status}: {RESULTS[sol.result]}")
     return sol
