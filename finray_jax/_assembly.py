@@ -79,8 +79,6 @@ class _Index:
 
     kin_a: np.ndarray
     kin_b: np.ndarray
-    kin_beam_a: np.ndarray
-    kin_beam_b: np.ndarray
     w_a: np.ndarray
     w_b: np.ndarray
     w_sign_a: np.ndarray
@@ -94,13 +92,13 @@ class _Index:
 def _build_index(topo: Topology) -> _Index:
     S, first, last = topo.n_segments, topo.first, topo.last
     end = lambda i: S + i
-    kin = []  # (a, b, beam_a, beam_b)
+    kin = []  # (a, b): b must equal a turned by the undeformed angle between the slots
     wr = []  # (a, b, sign_a)
     point_rows, point_loads, cb_rows, cb_src, cb_sign = [], [], [], [], []
     for b, evs in enumerate(topo.events):
         for k, (kind, j) in enumerate(evs):
             a, c = first[b] + k, first[b] + k + 1
-            kin.append((end(a), c, b, b))
+            kin.append((end(a), c))
             row = len(wr)
             wr.append((end(a), c, -1.0))
             if kind == "point":
@@ -118,17 +116,15 @@ def _build_index(topo: Topology) -> _Index:
         cbeam = 2 + j
         main_f = first[FRONT] + topo.cut_of(FRONT, "cb", j) + 1
         main_b = first[BACK] + topo.cut_of(BACK, "cb", j) + 1
-        kin.append((main_f, first[cbeam], FRONT, cbeam))
-        kin.append((main_b, end(last[cbeam]), BACK, cbeam))
-    kin.append((end(last[FRONT]), end(last[BACK]), FRONT, BACK))
+        kin.append((main_f, first[cbeam]))
+        kin.append((main_b, end(last[cbeam])))
+    kin.append((end(last[FRONT]), end(last[BACK])))
     wr.append((end(last[FRONT]), end(last[BACK]), 1.0))
-    kin = np.asarray(kin, dtype=np.int64).reshape(-1, 4)
+    kin = np.asarray(kin, dtype=np.int64).reshape(-1, 2)
     i = lambda x: np.asarray(x, dtype=np.int64)
     return _Index(
         kin_a=kin[:, 0],
         kin_b=kin[:, 1],
-        kin_beam_a=kin[:, 2],
-        kin_beam_b=kin[:, 3],
         w_a=i([w[0] for w in wr]),
         w_b=i([w[1] for w in wr]),
         w_sign_a=np.asarray([w[2] for w in wr]),
@@ -179,11 +175,13 @@ def build_topology(finger: Finger, mode: str) -> Topology:
 
 
 class Geometry(eqx.Module):
-    """Undeformed geometry of every beam: base point (3-D), angle theta, length."""
+    """Undeformed geometry of every beam: base point (3-D), start angle, arc length and
+    precurvature (main beams may be circular arcs; crossbeams are straight)."""
 
     base: jax.Array  # (B, 3)
-    theta: jax.Array  # (B,)
-    length: jax.Array  # (B,)
+    theta: jax.Array  # (B,) tangent angle at s = 0
+    length: jax.Array  # (B,) arc length
+    curvature: jax.Array  # (B,) constant in-plane precurvature (0 for crossbeams)
     L: jax.Array  # length scale (front-beam length)
     F: jax.Array  # force scale (front-beam EI / L^2)
 
@@ -192,27 +190,55 @@ def _xz(p2):
     return jnp.stack([p2[..., 0], jnp.zeros_like(p2[..., 0]), p2[..., 1]], axis=-1)
 
 
+def _sinc(x):
+    """sin(x)/x, smooth through 0."""
+    small = jnp.abs(x) < 1e-4
+    xs = jnp.where(small, 1.0, x)
+    return jnp.where(small, 1.0 - x * x / 6.0, jnp.sin(xs) / xs)
+
+
+def _asinc(x):
+    """asin(x)/x, smooth through 0."""
+    small = jnp.abs(x) < 1e-4
+    xs = jnp.where(small, 0.5, x)
+    return jnp.where(small, 1.0 + x * x / 6.0, jnp.arcsin(xs) / xs)
+
+
+def main_beam_arc(base, tip, curvature):
+    """A main beam from base to tip (3-vectors) with constant in-plane precurvature (1/mm;
+    positive turns the tangent from +z toward +x): (arc length, start angle theta0)."""
+    chord = tip - base
+    c = jnp.linalg.norm(chord)
+    length = c * _asinc(0.5 * curvature * c)
+    theta_c = jnp.arctan2(chord[0], chord[2])
+    return length, theta_c - 0.5 * curvature * length
+
+
+def arc_point(base, theta0, curvature, s):
+    """Undeformed centreline point at arc length s (s may be an array)."""
+    s = jnp.asarray(s)
+    half = theta0 + 0.5 * curvature * s
+    r = s * _sinc(0.5 * curvature * s)
+    return base + jnp.stack([r * jnp.sin(half), jnp.zeros_like(r), r * jnp.cos(half)], axis=-1)
+
+
 def geometry(finger: Finger) -> Geometry:
     fb, bb, tip = _xz(finger.front_base), _xz(finger.back_base), _xz(finger.tip)
-    lf = jnp.linalg.norm(tip - fb)
-    lb = jnp.linalg.norm(tip - bb)
-    tf, tb = (tip - fb) / lf, (tip - bb) / lb
+    kf, kb = finger.front_curvature, finger.back_curvature
+    lf, th_f = main_beam_arc(fb, tip, kf)
+    lb, th_b = main_beam_arc(bb, tip, kb)
     cb = finger.crossbeams
-    pf = fb + cb.front_s[:, None] * tf
-    pb = bb + cb.back_s[:, None] * tb
+    pf = arc_point(fb, th_f, kf, cb.front_s)
+    pb = arc_point(bb, th_b, kb, cb.back_s)
     d = pb - pf
     lc = jnp.linalg.norm(d, axis=-1)
     base = jnp.concatenate([jnp.stack([fb, bb]), pf], axis=0)
-    theta = jnp.concatenate(
-        [
-            jnp.stack([jnp.arctan2(tf[0], tf[2]), jnp.arctan2(tb[0], tb[2])]),
-            jnp.arctan2(d[:, 0], d[:, 2]),
-        ]
-    )
+    theta = jnp.concatenate([jnp.stack([th_f, th_b]), jnp.arctan2(d[:, 0], d[:, 2])])
     length = jnp.concatenate([jnp.stack([lf, lb]), lc])
+    curvature = jnp.concatenate([jnp.stack([kf, kb]), jnp.zeros_like(lc)])
     m = finger.material
     ei_front = m.E * finger.front.depth * finger.front.thickness**3 / 12.0
-    return Geometry(base, theta, length, lf, ei_front / lf**2)
+    return Geometry(base, theta, length, curvature, lf, ei_front / lf**2)
 
 
 class SegmentTable(eqx.Module):
@@ -278,17 +304,19 @@ def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable
             beams.append(b)
     beams = np.asarray(beams)
     start_s = jnp.stack(starts)
-    theta = geo.theta[beams]
-    t = jnp.stack([jnp.sin(theta), jnp.zeros_like(theta), jnp.cos(theta)], axis=-1)
+    kappa = geo.curvature[beams]
+    theta = geo.theta[beams] + kappa * start_s
+    point = jax.vmap(arc_point)(geo.base[beams], geo.theta[beams], kappa, start_s)
+    zero = jnp.zeros_like(kappa)
     return SegmentTable(
         start_s=start_s,
         length=jnp.stack(ends) - start_s,
         rigid=jnp.stack(rigid),
         stiffness=jnp.stack(stiffness),
         force=jnp.stack(force),
-        precurvature=jnp.zeros((len(beams), 3)),
+        precurvature=jnp.stack([zero, kappa, zero], axis=-1),
         theta=theta,
-        point=geo.base[beams] + start_s[:, None] * t,
+        point=point,
     )
 
 
@@ -355,9 +383,11 @@ class Problem(eqx.Module):
                 rows += [md.force_rows(md.force(y), F), md.moment_rows(md.moment(y), F, L)]
 
         both = jnp.concatenate([starts, ends])  # index i: start of i; S + i: end of i
-        # Kinematic pairs: b must equal a turned by theta[beam_b] - theta[beam_a]
+        # Kinematic pairs: b must equal a turned by their undeformed relative angle
         # (internal cuts, both crossbeam ends, the tip junction).
-        dth = geo.theta[ix.kin_beam_b] - geo.theta[ix.kin_beam_a]
+        t = self.table
+        slot_theta = jnp.concatenate([t.theta, t.theta + t.precurvature[:, 1] * t.length])
+        dth = slot_theta[ix.kin_b] - slot_theta[ix.kin_a]
         kin = jax.vmap(md.kinematic_error, in_axes=(0, 0, 0, None))(
             both[ix.kin_a], both[ix.kin_b], dth, L
         )

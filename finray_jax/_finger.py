@@ -112,7 +112,10 @@ class Finger(eqx.Module):
     """A fin-ray finger: two main beams joined at the tip, linked by crossbeams.
 
     Points are (x, z) in mm. The front beam runs from front_base to tip, the back beam
-    from back_base to tip; both are straight in the undeformed state.
+    from back_base to tip. front_curvature, back_curvature (1/mm, default 0: straight)
+    make a main beam an undeformed circular arc from base to tip with that precurvature;
+    positive turns its tangent from +z toward +x. Arc lengths (attachments, loads) are
+    measured along the arc.
     torsion: "paper" uses G (Ixx + Iyy); "rectangle" the Saint-Venant constant.
     """
 
@@ -125,6 +128,8 @@ class Finger(eqx.Module):
     crossbeams: Crossbeams
     adaptor: Adaptor = Adaptor()
     loads: tuple[AbstractLoad, ...] = ()
+    front_curvature: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
+    back_curvature: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
     torsion: str = eqx.field(static=True, default="paper")
 
     @property
@@ -188,21 +193,32 @@ def _positive(name, value):
     return v
 
 
+def _arcs(finger: Finger):
+    from ._assembly import _xz, arc_point, main_beam_arc  # geometry lives with assembly
+
+    out = []
+    for base, kappa in (
+        (finger.front_base, finger.front_curvature),
+        (finger.back_base, finger.back_curvature),
+    ):
+        b = _xz(as_float(base))
+        length, theta0 = main_beam_arc(b, _xz(as_float(finger.tip)), as_float(kappa))
+        out.append((b, theta0, as_float(kappa), length))
+    return out, arc_point
+
+
 def beam_lengths(finger: Finger) -> tuple[float, float]:
-    tip = _num(finger.tip)
-    return (
-        float(np.linalg.norm(tip - _num(finger.front_base))),
-        float(np.linalg.norm(tip - _num(finger.back_base))),
-    )
+    """Arc lengths of the front and back beams."""
+    arcs, _ = _arcs(finger)
+    return float(arcs[0][3]), float(arcs[1][3])
 
 
 def crossbeam_lengths(finger: Finger) -> np.ndarray:
-    fb, bb, tip = _num(finger.front_base), _num(finger.back_base), _num(finger.tip)
-    lf, lb = beam_lengths(finger)
-    tf, tb = (tip - fb) / lf, (tip - bb) / lb
+    (fb, tf, kf, _), (bb, tb, kb, _) = _arcs(finger)[0]
+    arc_point = _arcs(finger)[1]
     cb = finger.crossbeams
-    pf = fb + _num(cb.front_s)[:, None] * tf
-    pb = bb + _num(cb.back_s)[:, None] * tb
+    pf = np.asarray(arc_point(fb, tf, kf, as_float(cb.front_s)))
+    pb = np.asarray(arc_point(bb, tb, kb, as_float(cb.back_s)))
     return np.linalg.norm(pb - pf, axis=-1)
 
 
@@ -227,6 +243,15 @@ def validate_finger(finger: Finger) -> None:
             name = f"{beam}.tip_thickness"
             _positive(name, _shaped(name, sec.tip_thickness, ()))
         _positive(f"{beam}.depth", _shaped(f"{beam}.depth", sec.depth, ()))
+    for name in ("front_curvature", "back_curvature"):
+        kappa = float(_finite(name, _shaped(name, getattr(finger, name), ())))
+        base = _num(finger.front_base if name.startswith("front") else finger.back_base)
+        chord = float(np.linalg.norm(_num(finger.tip) - base))
+        if abs(kappa) * chord / 2.0 >= 0.99:
+            raise FingerError(
+                f"{name} = {kappa} is too large for a chord of {chord:.6g} mm: "
+                f"|curvature| * chord / 2 must stay below 0.99 (at most a near half circle)"
+            )
     lf, lb = beam_lengths(finger)
     if lf <= 0:
         raise FingerError(f"front beam has zero length: front_base equals tip {finger.tip}")
@@ -284,6 +309,12 @@ def validate_finger(finger: Finger) -> None:
         lc = float(_finite(f"adaptor.{name}_clamp_length", length))
         if not 0.0 <= lc < total:
             raise FingerError(f"adaptor.{name}_clamp_length must lie in [0, {total:.6g}), got {lc}")
+        curvature = float(_num(getattr(finger, f"{name}_curvature")))
+        if lc > 0 and curvature != 0.0:
+            raise FingerError(
+                f"adaptor.{name}_clamp_length = {lc} with {name}_curvature = {curvature}: "
+                "a clamp on a curved beam is not supported yet"
+            )
         if lc > 0 and kind != "clamped":
             raise FingerError(
                 f"adaptor.{name}_clamp_length = {lc} needs adaptor.{name}_base = 'clamped', "

@@ -10,7 +10,7 @@ import numpy as np
 import optimistix as optx
 from jax import lax
 
-from ._assembly import Geometry, Problem, build_topology, geometry, segment_table
+from ._assembly import Geometry, Problem, arc_point, build_topology, geometry, segment_table
 from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
 from ._rod import Integrator
 from ._rotation import log_so3, planar_frame
@@ -412,11 +412,9 @@ def _outputs(problem: Problem, y, lam, code, iterations) -> Solution:
         z = jnp.zeros((0, 3))
         wrenches = CrossbeamWrenches(z, z, z, z)
 
-    tip0 = geo.base[FRONT] + geo.length[FRONT] * jnp.stack(
-        [jnp.sin(geo.theta[FRONT]), 0.0, jnp.cos(geo.theta[FRONT])]
-    )
-    R_tip = front.frame[-1]
-    rot = log_so3(R_tip @ planar_frame(geo.theta[FRONT]).T)
+    tip0 = arc_point(geo.base[FRONT], geo.theta[FRONT], geo.curvature[FRONT], geo.length[FRONT])
+    theta_tip0 = geo.theta[FRONT] + geo.curvature[FRONT] * geo.length[FRONT]
+    rot = log_so3(front.frame[-1] @ planar_frame(theta_tip0).T)
     tip = Tip(front.position[-1], front.position[-1] - tip0, rot)
     return Solution(
         result=code,

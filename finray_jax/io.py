@@ -312,13 +312,13 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     front = r.table(
         doc["front"],
         "front",
-        ("base", "tip", "thickness", "depth", "tip_thickness"),
+        ("base", "tip", "thickness", "depth", "tip_thickness", "curvature"),
         required=("base", "tip", "thickness", "depth"),
     )
     back = r.table(
         doc["back"],
         "back",
-        ("base", "thickness", "depth", "tip_thickness"),
+        ("base", "thickness", "depth", "tip_thickness", "curvature"),
         required=("base", "thickness", "depth"),
         hints={"tip": "the two beams share one tip: give it once, as front.tip"},
     )
@@ -326,6 +326,10 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     tip = r.vector(front["tip"], "front.tip", 2, "a point [x, z]")
     back_base = r.vector(back["base"], "back.base", 2, "a point [x, z]")
     sections = {}
+    curvature = {
+        beam: r.number(tbl["curvature"], f"{beam}.curvature") if "curvature" in tbl else 0.0
+        for beam, tbl in (("front", front), ("back", back))
+    }
     for beam, tbl in (("front", front), ("back", back)):
         tip_t = tbl.get("tip_thickness")
         sections[beam] = Section(
@@ -390,6 +394,8 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
         crossbeams=crossbeams,
         adaptor=adaptor,
         loads=loads,
+        front_curvature=curvature["front"],
+        back_curvature=curvature["back"],
         torsion=torsion,
     )
     try:
@@ -612,10 +618,13 @@ def _ts(s: str) -> str:
     return json.dumps(s, ensure_ascii=False)
 
 
-def _tip_thickness_line(section):
-    if section.tip_thickness is None:
-        return []
-    return [f"tip_thickness = {_tf(section.tip_thickness)}"]
+def _optional_lines(section, curvature):
+    out = []
+    if section.tip_thickness is not None:
+        out.append(f"tip_thickness = {_tf(section.tip_thickness)}")
+    if float(curvature) != 0.0:
+        out.append(f"curvature = {_tf(curvature)}")
+    return out
 
 
 def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str:
@@ -651,7 +660,7 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
         f"tip = {_tv(finger.tip)}",
         f"thickness = {_tf(finger.front.thickness)}",
         f"depth = {_tf(finger.front.depth)}",
-        *_tip_thickness_line(finger.front),
+        *_optional_lines(finger.front, finger.front_curvature),
         "",
     ]
     out += [
@@ -659,7 +668,7 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
         f"base = {_tv(finger.back_base)}",
         f"thickness = {_tf(finger.back.thickness)}",
         f"depth = {_tf(finger.back.depth)}",
-        *_tip_thickness_line(finger.back),
+        *_optional_lines(finger.back, finger.back_curvature),
         "",
     ]
     ad = finger.adaptor

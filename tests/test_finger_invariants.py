@@ -488,3 +488,39 @@ def test_tapered_main_beams(sol_l1):
     thick = _solve_ok(_replace(base, front=fr.Section(2.0, 20.0)))
     dx = lambda s: float(s.tip.displacement[0])
     assert dx(thick) < dx(sol_t) < dx(thin)
+
+
+def test_curved_main_beams():
+    """Precurved (circular-arc) main beams: unloaded, the finger keeps its arcs exactly and
+    carries no internal force (the precurvature, the joint angles taken at each joint and
+    the tip junction are consistent); loaded, planar and 3-D agree and it balances."""
+    from finray_jax._assembly import arc_point, geometry
+
+    curved = _replace(_ref("none"), front_curvature=0.004, back_curvature=-0.003)
+    sol = _solve_ok(curved, mode="planar")
+    geo = geometry(curved)
+    for b, (name, beam) in enumerate(_beams(sol)):
+        arc = arc_point(geo.base[b], geo.theta[b], geo.curvature[b], beam.s)
+        np.testing.assert_allclose(np.asarray(beam.position), np.asarray(arc), atol=1e-10)
+        assert np.max(np.abs(np.asarray(beam.force))) < 1e-12
+        assert np.max(np.abs(np.asarray(beam.moment))) < 1e-10
+    loaded = _replace(_ref("L1"), front_curvature=0.004, back_curvature=-0.003)
+    planar = _solve_ok(loaded, mode="planar")
+    spatial = _solve_ok(loaded, mode="spatial")
+    _assert_balanced(loaded, planar)
+    np.testing.assert_allclose(
+        np.asarray(planar.tip.displacement), np.asarray(spatial.tip.displacement), atol=1e-9
+    )
+
+
+def test_curvature_rules():
+    base = _ref("L1")
+    with pytest.raises(fr.FingerError, match="front_curvature = 0.5"):
+        fr.validate_finger(_replace(base, front_curvature=0.5))
+    clamped = _replace(
+        base,
+        back_curvature=0.001,
+        adaptor=fr.Adaptor("clamped", "clamped", back_clamp_length=10.0),
+    )
+    with pytest.raises(fr.FingerError, match="back_clamp_length = 10.0"):
+        fr.validate_finger(clamped)

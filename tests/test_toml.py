@@ -543,6 +543,7 @@ def test_round_trip_everything():
             [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
         ),
         adaptor=fr.Adaptor("clamped", "pinned", front_clamp_length=4.0 / 3.0),
+        back_curvature=-0.002,
         loads=(
             fr.PointLoad(0, 50.0 + 1e-9, (0.1, 0.2, -0.3), (1.0, 2.0, 3.0)),
             fr.PointLoad(3, 5.0, (0.0, 0.0, 1.0 / 3.0)),
