@@ -4,8 +4,6 @@ Design values are float64 arrays (changing them never recompiles). What fixes sh
 code paths (counts, boundary-condition kinds, the beam a load acts on) is static.
 """
 
-from typing import Literal
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -13,7 +11,6 @@ from jaxtyping import Array, Float
 
 from ._types import as_float
 
-BaseKind = Literal["clamped", "pinned", "free"]
 BASE_KINDS = ("clamped", "pinned", "free")
 TORSION_KINDS = ("paper", "rectangle")
 FRONT, BACK = 0, 1
@@ -214,8 +211,7 @@ def beam_lengths(finger: Finger) -> tuple[float, float]:
 
 
 def crossbeam_lengths(finger: Finger) -> np.ndarray:
-    (fb, tf, kf, _), (bb, tb, kb, _) = _arcs(finger)[0]
-    arc_point = _arcs(finger)[1]
+    ((fb, tf, kf, _), (bb, tb, kb, _)), arc_point = _arcs(finger)
     cb = finger.crossbeams
     pf = np.asarray(arc_point(fb, tf, kf, as_float(cb.front_s)))
     pb = np.asarray(arc_point(bb, tb, kb, as_float(cb.back_s)))

@@ -42,7 +42,6 @@ class Integrator(eqx.Module):
     solver: dfx.AbstractSolver = dfx.Tsit5(scan_kind="lax")
     steps: int = eqx.field(static=True, default=10)
     backend: str = eqx.field(static=True, default="tableau")
-    unroll: int = eqx.field(static=True, default=1)
 
     def __check_init__(self):
         if not isinstance(self.steps, numbers.Integral) or self.steps < 1:
@@ -108,8 +107,6 @@ class AbstractRodModel(eqx.Module):
     n_unknown: ClassVar[int]  # unknowns per segment start state
     n_full: ClassVar[int]  # integrated state size
     n_stiff: ClassVar[int]  # stiffness entries per sample
-    n_kin: ClassVar[int]  # kinematic equations of a clamp (position + orientation)
-    n_wrench: ClassVar[int]  # wrench equations of a free end
 
 
 class PlanarRod(AbstractRodModel):
@@ -124,8 +121,6 @@ class PlanarRod(AbstractRodModel):
     n_unknown: ClassVar[int] = 6
     n_full: ClassVar[int] = 6
     n_stiff: ClassVar[int] = 3
-    n_kin: ClassVar[int] = 3
-    n_wrench: ClassVar[int] = 3
 
     def pack(self, table):
         head = jnp.stack(
@@ -239,8 +234,6 @@ class SpatialRod(AbstractRodModel):
     n_unknown: ClassVar[int] = 12
     n_full: ClassVar[int] = 18
     n_stiff: ClassVar[int] = 6
-    n_kin: ClassVar[int] = 6
-    n_wrench: ClassVar[int] = 6
 
     def pack(self, table):
         head = [table.length[:, None], table.rigid[:, None], table.force, table.precurvature]
@@ -384,7 +377,7 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
             y1 = _rk_step(solver.tableau, f, i * h, yy, h)
             return y1, (y1 if save_all else None)
 
-        y_end, ys = lax.scan(rk, y, jnp.arange(n, dtype=q.dtype), unroll=integrator.unroll)
+        y_end, ys = lax.scan(rk, y, jnp.arange(n, dtype=q.dtype))
         if save_all:
             return jnp.concatenate([y[None], ys], axis=0)
         return y_end

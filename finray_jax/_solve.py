@@ -6,11 +6,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
-import numpy as np
 import optimistix as optx
 from jax import lax
 
-from ._assembly import Geometry, Problem, arc_point, build_topology, geometry, segment_table
+from ._assembly import Problem, arc_point, build_topology, geometry, segment_table
 from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
 from ._rod import Integrator
 from ._rotation import log_so3, planar_frame
@@ -203,7 +202,6 @@ class _Arc(eqx.Module):
     t: jax.Array
     ds: jax.Array
     near_fold: jax.Array
-    last_fold: jax.Array
     done: jax.Array
     reached: jax.Array
     y_over: jax.Array  # first accepted point beyond the target
@@ -259,7 +257,6 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
             t=jnp.where(keep, t1, s.t),
             ds=ds_new,
             near_fold=near_fold,
-            last_fold=jnp.where(accept, False, folded),
             done=reached | (~accept & tiny),
             reached=reached,
             y_over=jnp.where(reached, y1, s.y_over),
@@ -276,7 +273,6 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         t=t0,
         ds=jnp.asarray(opts.initial_arc_step),
         near_fold=false,
-        last_fold=false,
         done=~jnp.asarray(active),
         reached=false,
         y_over=y0,
@@ -547,6 +543,3 @@ def limit_load(
     topo = prepare(finger, mode, topology)
     lam, sol = _limit_core(topo, integrator, options, finger)
     return LimitLoad(lam, sol)
-
-
-_unused = (Geometry, np)
