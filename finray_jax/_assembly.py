@@ -19,7 +19,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._finger import BACK, FRONT, Finger, PointLoad, torsion_constant
+from ._finger import BACK, FRONT, Finger, PointLoad
+from ._geometry import Geometry, arc_point, section_stiffness
 from ._rod import TAPER_NODES, rod_model, segment_flow, segment_trajectories
 
 # Event kinds on a beam, in the order used to break ties at equal arc length.
@@ -174,73 +175,6 @@ def build_topology(finger: Finger, mode: str) -> Topology:
 # --------------------------------------------------------------------------------------
 
 
-class Geometry(eqx.Module):
-    """Undeformed geometry of every beam: base point (3-D), start angle, arc length and
-    precurvature (main beams may be circular arcs; crossbeams are straight)."""
-
-    base: jax.Array  # (B, 3)
-    theta: jax.Array  # (B,) tangent angle at s = 0
-    length: jax.Array  # (B,) arc length
-    curvature: jax.Array  # (B,) constant in-plane precurvature (0 for crossbeams)
-    L: jax.Array  # length scale (front-beam length)
-    F: jax.Array  # force scale (front-beam EI / L^2)
-
-
-def _xz(p2):
-    return jnp.stack([p2[..., 0], jnp.zeros_like(p2[..., 0]), p2[..., 1]], axis=-1)
-
-
-def _sinc(x):
-    """sin(x)/x, smooth through 0."""
-    small = jnp.abs(x) < 1e-4
-    xs = jnp.where(small, 1.0, x)
-    return jnp.where(small, 1.0 - x * x / 6.0, jnp.sin(xs) / xs)
-
-
-def _asinc(x):
-    """asin(x)/x, smooth through 0."""
-    small = jnp.abs(x) < 1e-4
-    xs = jnp.where(small, 0.5, x)
-    return jnp.where(small, 1.0 + x * x / 6.0, jnp.arcsin(xs) / xs)
-
-
-def main_beam_arc(base, tip, curvature):
-    """A main beam from base to tip (3-vectors) with constant in-plane precurvature (1/mm;
-    positive turns the tangent from +z toward +x): (arc length, start angle theta0)."""
-    chord = tip - base
-    c = jnp.linalg.norm(chord)
-    length = c * _asinc(0.5 * curvature * c)
-    theta_c = jnp.arctan2(chord[0], chord[2])
-    return length, theta_c - 0.5 * curvature * length
-
-
-def arc_point(base, theta0, curvature, s):
-    """Undeformed centreline point at arc length s (s may be an array)."""
-    s = jnp.asarray(s)
-    half = theta0 + 0.5 * curvature * s
-    r = s * _sinc(0.5 * curvature * s)
-    return base + jnp.stack([r * jnp.sin(half), jnp.zeros_like(r), r * jnp.cos(half)], axis=-1)
-
-
-def geometry(finger: Finger) -> Geometry:
-    fb, bb, tip = _xz(finger.front_base), _xz(finger.back_base), _xz(finger.tip)
-    kf, kb = finger.front_curvature, finger.back_curvature
-    lf, th_f = main_beam_arc(fb, tip, kf)
-    lb, th_b = main_beam_arc(bb, tip, kb)
-    cb = finger.crossbeams
-    pf = arc_point(fb, th_f, kf, cb.front_s)
-    pb = arc_point(bb, th_b, kb, cb.back_s)
-    d = pb - pf
-    lc = jnp.linalg.norm(d, axis=-1)
-    base = jnp.concatenate([jnp.stack([fb, bb]), pf], axis=0)
-    theta = jnp.concatenate([jnp.stack([th_f, th_b]), jnp.arctan2(d[:, 0], d[:, 2])])
-    length = jnp.concatenate([jnp.stack([lf, lb]), lc])
-    curvature = jnp.concatenate([jnp.stack([kf, kb]), jnp.zeros_like(lc)])
-    m = finger.material
-    ei_front = m.E * finger.front.depth * finger.front.thickness**3 / 12.0
-    return Geometry(base, theta, length, curvature, lf, ei_front / lf**2)
-
-
 class SegmentTable(eqx.Module):
     start_s: jax.Array  # (S,)
     length: jax.Array  # (S,)
@@ -250,16 +184,6 @@ class SegmentTable(eqx.Module):
     precurvature: jax.Array  # (S, 3)
     theta: jax.Array  # (S,) undeformed frame angle
     point: jax.Array  # (S, 3) undeformed start point
-
-
-def section_stiffness(material, thickness, depth, torsion: str):
-    """(..., 6) kGA1, kGA2, EA, EI1, EI2, GJ of a rectangle (thickness in plane)."""
-    E, G, k = material.E, material.G, material.shear_coefficient
-    A = thickness * depth
-    I1 = thickness * depth**3 / 12.0  # about d1: out of plane
-    I2 = depth * thickness**3 / 12.0  # about d2: in plane
-    J = torsion_constant(thickness, depth, torsion)
-    return jnp.stack([k * G * A, k * G * A, E * A, E * I1, E * I2, G * J], axis=-1)
 
 
 def _thickness_depth(finger: Finger, geo: Geometry, beam: int, s):
@@ -367,7 +291,6 @@ class Problem(eqx.Module):
         topo, md, geo = self.topo, self.model, self.geo
         L, F = geo.L, geo.F
         ix = topo.index
-        S = starts.shape[0]
         rows = []
 
         # Base conditions of the two main beams.
@@ -397,14 +320,14 @@ class Problem(eqx.Module):
         # tip n_front + n_back = 0 (a zero-jump row with both signs +).
         force = jax.vmap(md.force)(both)
         moment = jax.vmap(md.moment)(both)
-        jf, jm = self._jumps(starts, ends, lam, force, moment, S)
+        jf, jm = self._jumps(lam, force, moment)
         wf = ix.w_sign_a[:, None] * force[ix.w_a] + force[ix.w_b] + jf
         wm = ix.w_sign_a[:, None] * moment[ix.w_a] + moment[ix.w_b] + jm
         rows.append(jax.vmap(md.force_rows, in_axes=(0, None))(wf, F).reshape(-1))
         rows.append(jax.vmap(md.moment_rows, in_axes=(0, None, None))(wm, F, L).reshape(-1))
         return jnp.concatenate(rows)
 
-    def _jumps(self, starts, ends, lam, force, moment, S):
+    def _jumps(self, lam, force, moment):
         """Per wrench row (F, M) with n(s+) = n(s-) - F at that cut; the tip row gets 0."""
         ix = self.topo.index
         n_rows = ix.w_a.shape[0]

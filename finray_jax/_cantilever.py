@@ -5,8 +5,9 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._assembly import SegmentTable, section_stiffness
+from ._assembly import SegmentTable
 from ._finger import Material, Section
+from ._geometry import section_stiffness
 from ._rod import (
     TAPER_NODES,
     Integrator,

@@ -5,10 +5,10 @@ code paths (counts, boundary-condition kinds, the beam a load acts on) is static
 """
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._geometry import geometry, main_beam_arc, xz
 from ._types import as_float
 
 BASE_KINDS = ("clamped", "pinned", "free")
@@ -190,32 +190,20 @@ def _positive(name, value):
     return v
 
 
-def _arcs(finger: Finger):
-    from ._assembly import _xz, arc_point, main_beam_arc  # geometry lives with assembly
-
-    out = []
-    for base, kappa in (
-        (finger.front_base, finger.front_curvature),
-        (finger.back_base, finger.back_curvature),
-    ):
-        b = _xz(as_float(base))
-        length, theta0 = main_beam_arc(b, _xz(as_float(finger.tip)), as_float(kappa))
-        out.append((b, theta0, as_float(kappa), length))
-    return out, arc_point
-
-
 def beam_lengths(finger: Finger) -> tuple[float, float]:
-    """Arc lengths of the front and back beams."""
-    arcs, _ = _arcs(finger)
-    return float(arcs[0][3]), float(arcs[1][3])
+    """Arc lengths of the front and back beams (needs only the main beams' fields)."""
+    tip = xz(as_float(finger.tip))
+    return tuple(
+        float(main_beam_arc(xz(as_float(base)), tip, as_float(kappa))[0])
+        for base, kappa in (
+            (finger.front_base, finger.front_curvature),
+            (finger.back_base, finger.back_curvature),
+        )
+    )
 
 
 def crossbeam_lengths(finger: Finger) -> np.ndarray:
-    ((fb, tf, kf, _), (bb, tb, kb, _)), arc_point = _arcs(finger)
-    cb = finger.crossbeams
-    pf = np.asarray(arc_point(fb, tf, kf, as_float(cb.front_s)))
-    pb = np.asarray(arc_point(bb, tb, kb, as_float(cb.back_s)))
-    return np.linalg.norm(pb - pf, axis=-1)
+    return np.asarray(geometry(finger).length[2:])
 
 
 def validate_finger(finger: Finger) -> None:
@@ -355,12 +343,3 @@ def loads_in_plane(finger: Finger) -> bool:
         elif abs(float(load.total_force[1])) > 0:
             return False
     return True
-
-
-def torsion_constant(thickness, depth, kind: str):
-    """Torsion constant J of a rectangle: 'paper' Ixx + Iyy, or Saint-Venant's."""
-    if kind == "paper":
-        return thickness * depth * (thickness**2 + depth**2) / 12.0
-    a = jnp.maximum(thickness, depth)
-    b = jnp.minimum(thickness, depth)
-    return a * b**3 * (1.0 / 3.0 - 0.21 * (b / a) * (1.0 - b**4 / (12.0 * a**4)))

@@ -9,8 +9,9 @@ import lineax as lx
 import optimistix as optx
 from jax import lax
 
-from ._assembly import Problem, arc_point, build_topology, geometry, segment_table
+from ._assembly import Problem, build_topology, segment_table
 from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
+from ._geometry import arc_point, geometry
 from ._rod import Integrator
 from ._rotation import log_so3, planar_frame
 from ._solution import (
@@ -221,8 +222,11 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
     lam0 = jnp.zeros(())
     e = jnp.zeros(n + 1).at[-1].set(1.0)
     t_raw, sign0 = _tangent(problem, y0, lam0, 1.0, e)
+    # Weight the shape part so the first tangent has equal shape and load parts; the
+    # tangent in the weighted coordinates (w y, lam) is the raw one rescaled.
     w = jnp.abs(t_raw[-1]) / jnp.maximum(jnp.linalg.norm(t_raw[:-1]), 1e-30)
-    t0, _ = _tangent(problem, y0, lam0, w, e)
+    t0 = jnp.concatenate([w * t_raw[:-1], t_raw[-1:]])
+    t0 = t0 / jnp.linalg.norm(t0)
     opts = options
 
     def cond(s: _Arc):
@@ -397,16 +401,12 @@ def _outputs(problem: Problem, y, lam, code, iterations) -> Solution:
     def reaction(bs: BeamSolution):
         return Reaction(-bs.force[0], -bs.moment[0])
 
-    if cbs:
-        wrenches = CrossbeamWrenches(
-            front_force=crossbeams.force[:, 0],
-            front_moment=crossbeams.moment[:, 0],
-            back_force=-crossbeams.force[:, -1],
-            back_moment=-crossbeams.moment[:, -1],
-        )
-    else:
-        z = jnp.zeros((0, 3))
-        wrenches = CrossbeamWrenches(z, z, z, z)
+    wrenches = CrossbeamWrenches(  # (0, 3) arrays when there are no crossbeams
+        front_force=crossbeams.force[:, 0],
+        front_moment=crossbeams.moment[:, 0],
+        back_force=-crossbeams.force[:, -1],
+        back_moment=-crossbeams.moment[:, -1],
+    )
 
     tip0 = arc_point(geo.base[FRONT], geo.theta[FRONT], geo.curvature[FRONT], geo.length[FRONT])
     theta_tip0 = geo.theta[FRONT] + geo.curvature[FRONT] * geo.length[FRONT]

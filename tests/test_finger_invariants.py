@@ -478,7 +478,7 @@ def test_tapered_main_beams(sol_l1):
     base = _ref("L1")
     same = _replace(base, front=fr.Section(1.5, 20.0, tip_thickness=1.5))
     sol_same = _solve_ok(same)
-    for (name, a), (_, b) in zip(_beams(sol_l1), _beams(sol_same)):
+    for (_, a), (_, b) in zip(_beams(sol_l1), _beams(sol_same)):
         np.testing.assert_allclose(np.asarray(b.position), np.asarray(a.position), atol=1e-10)
 
     tapered = _replace(base, front=fr.Section(2.0, 20.0, tip_thickness=1.0))
@@ -494,12 +494,12 @@ def test_curved_main_beams():
     """Precurved (circular-arc) main beams: unloaded, the finger keeps its arcs exactly and
     carries no internal force (the precurvature, the joint angles taken at each joint and
     the tip junction are consistent); loaded, planar and 3-D agree and it balances."""
-    from finray_jax._assembly import arc_point, geometry
+    from finray_jax._geometry import arc_point, geometry
 
     curved = _replace(_ref("none"), front_curvature=0.004, back_curvature=-0.003)
     sol = _solve_ok(curved, mode="planar")
     geo = geometry(curved)
-    for b, (name, beam) in enumerate(_beams(sol)):
+    for b, (_, beam) in enumerate(_beams(sol)):
         arc = arc_point(geo.base[b], geo.theta[b], geo.curvature[b], beam.s)
         np.testing.assert_allclose(np.asarray(beam.position), np.asarray(arc), atol=1e-10)
         assert np.max(np.abs(np.asarray(beam.force))) < 1e-12
