@@ -19,12 +19,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._finger import BACK, FRONT, Finger, PointLoad
+from ._contact import ContactSpec, contact_spec, global_params
+from ._finger import BACK, FRONT, Finger, PointLoad, beam_lengths
 from ._geometry import Geometry, arc_point, section_stiffness
 from ._rod import TAPER_NODES, rod_model, segment_flow, segment_trajectories
 
 # Event kinds on a beam, in the order used to break ties at equal arc length.
-_KIND_ORDER = {"dist_end": 0, "cb": 1, "point": 2, "dist_start": 3}
+_KIND_ORDER = {"support_end": -1, "dist_end": 0, "cb": 1, "point": 2, "dist_start": 3}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,6 +37,7 @@ class Topology:
     n_crossbeams: int
     events: tuple[tuple[tuple[str, int], ...], ...]  # per beam, ordered (kind, index)
     tapered: bool = False  # a main beam's section varies along s
+    contact: ContactSpec | None = None  # objects and support, if any
 
     @property
     def n_beams(self):
@@ -67,11 +69,19 @@ class Topology:
 
     @property
     def model(self):
-        return rod_model(self.mode, self.tapered)
+        return rod_model(self.mode, self.tapered, self.contact)
 
     @functools.cached_property
     def index(self) -> "_Index":
         return _build_index(self)
+
+    @property
+    def n_loads(self):
+        return len({j for evs in self.events for kind, j in evs if kind in ("point", "dist_start")})
+
+    @functools.cached_property
+    def layout(self) -> "_Layout":
+        return _build_layout(self, self.n_loads)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -138,6 +148,8 @@ def _build_index(topo: Topology) -> _Index:
 
 
 def _event_s(finger: Finger, beam: int, kind: str, index: int):
+    if kind == "support_end":
+        return finger.adaptor.support_length
     if kind == "cb":
         cb = finger.crossbeams
         return cb.front_s[index] if beam == FRONT else cb.back_s[index]
@@ -159,15 +171,36 @@ def build_topology(finger: Finger, mode: str) -> Topology:
         else:
             per_beam[load.beam].append(("dist_start", j))
             per_beam[load.beam].append(("dist_end", j))
+    ad = finger.adaptor
+    contact = contact_spec(finger)
+    if ad.support_length is not None:
+        per_beam[BACK].append(("support_end", 0))
     events = []
     for b, evs in enumerate(per_beam):
         key = lambda e, b=b: (float(_event_s(finger, b, *e)), _KIND_ORDER[e[0]], e[1])
-        events.append(tuple(sorted(evs, key=key)))
-    ad = finger.adaptor
+        evs = sorted(evs, key=key)
+        if contact is not None and b in (FRONT, BACK):
+            evs = _subdivide(finger, b, evs, finger.contact.segment_length)
+        events.append(tuple(evs))
     tapered = finger.front.tip_thickness is not None or finger.back.tip_thickness is not None
     return Topology(
-        mode, (ad.front_base, ad.back_base), finger.n_crossbeams, tuple(events), tapered
+        mode, (ad.front_base, ad.back_base), finger.n_crossbeams, tuple(events), tapered, contact
     )
+
+
+def _subdivide(finger, beam, events, max_length):
+    """Insert ("sub", (k, m)) cuts so that no segment is longer than max_length: cut k of
+    m equal pieces between two neighbouring events (the count m is fixed here, from the
+    concrete design; the cut positions follow the design values)."""
+    length = beam_lengths(finger)[beam]
+    cuts = [0.0] + [float(_event_s(finger, beam, *e)) for e in events] + [length]
+    out = []
+    for k in range(len(events) + 1):
+        m = max(1, int(np.ceil((cuts[k + 1] - cuts[k]) / max_length - 1e-9)))
+        out += [("sub", (i, m)) for i in range(1, m)]
+        if k < len(events):
+            out.append(events[k])
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -179,6 +212,7 @@ class SegmentTable(eqx.Module):
     start_s: jax.Array  # (S,)
     length: jax.Array  # (S,)
     rigid: jax.Array  # (S,) length held rigidly by an adaptor clamp
+    contact: jax.Array  # (S, N_SEGMENT + globals) contact columns, or (S, 0)
     stiffness: jax.Array  # (S, 4, 6): kGA1, kGA2, EA, EI1, EI2, GJ at TAPER_NODES
     force: jax.Array  # (S, 3) distributed force per length (at load factor 1)
     precurvature: jax.Array  # (S, 3)
@@ -186,58 +220,145 @@ class SegmentTable(eqx.Module):
     point: jax.Array  # (S, 3) undeformed start point
 
 
-def _thickness_depth(finger: Finger, geo: Geometry, beam: int, s):
-    """Thickness (linear from base to tip when tip_thickness is set) and depth at s."""
-    if beam >= 2:
-        cb = finger.crossbeams
-        return cb.thickness[beam - 2] * jnp.ones_like(s), cb.depth[beam - 2]
-    sec = finger.front if beam == FRONT else finger.back
-    if sec.tip_thickness is None:
-        return sec.thickness * jnp.ones_like(s), sec.depth
-    frac = s / geo.length[beam]
-    return sec.thickness + (sec.tip_thickness - sec.thickness) * frac, sec.depth
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Layout:
+    """Static description of every segment, in terms of a vector of *anchors*: the arc
+    lengths the design supplies (0, beam lengths, attachments, load positions, the
+    support length). A cut's position is a fixed linear combination of anchors."""
+
+    beam: np.ndarray  # (S,) beam of each segment
+    start: np.ndarray  # (S, n_anchor) start position weights
+    end: np.ndarray  # (S, n_anchor)
+    loads: np.ndarray  # (S, n_loads) 1 where a distributed load covers the segment
+    supported: np.ndarray  # (S,) 1 on back-beam segments before the support's end
 
 
-def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable:
-    ad = finger.adaptor
-    stiffness = []
-    clamp = [ad.front_clamp_length, ad.back_clamp_length] + [jnp.zeros(())] * topo.n_crossbeams
-    starts, ends, rigid, force, beams = [], [], [], [], []
+def _anchor_index(topo: Topology, n_loads: int):
+    """Anchor of an event: 0 -> 0, 1 + b -> length of beam b, then crossbeam front_s,
+    back_s, the loads' first and second positions, the support length."""
+    B, C = topo.n_beams, topo.n_crossbeams
+    base = {"length": 1, "front_s": 1 + B, "back_s": 1 + B + C, "load_a": 1 + B + 2 * C}
+    base["load_b"] = base["load_a"] + n_loads
+    base["support"] = base["load_b"] + n_loads
+
+    def of(beam, kind, j):
+        if kind == "cb":
+            return base["front_s" if beam == FRONT else "back_s"] + j
+        if kind in ("point", "dist_start"):
+            return base["load_a"] + j
+        if kind == "dist_end":
+            return base["load_b"] + j
+        return base["support"]  # support_end
+
+    return of, base["support"] + 1
+
+
+def _build_layout(topo: Topology, n_loads: int) -> _Layout:
+    of, n_anchor = _anchor_index(topo, n_loads)
+    beam, start, end, loads, supported = [], [], [], [], []
     for b, evs in enumerate(topo.events):
-        cuts = [jnp.zeros(())] + [_event_s(finger, b, *e) for e in evs] + [geo.length[b]]
-        active = []  # distributed loads covering the current segment
+        # Weights of every cut of this beam: 0, each event, the beam's length.
+        real = [np.eye(n_anchor)[0]]
+        for kind, j in evs:
+            real.append(None if kind == "sub" else np.eye(n_anchor)[of(b, kind, j)])
+        real.append(np.eye(n_anchor)[1 + b])
+        cuts = list(real)
+        for i, (kind, j) in enumerate(evs, start=1):
+            if kind == "sub":  # cut k of m equal pieces between two real cuts
+                k, m = j
+                nxt = next(c for c in real[i + 1 :] if c is not None)
+                cuts[i] = cuts[i - k] + (nxt - cuts[i - k]) * (k / m)
+        active = np.zeros(n_loads)
+        inside = b == BACK
         for k in range(len(evs) + 1):
             if k > 0:
                 kind, j = evs[k - 1]
-                if kind == "dist_start":
-                    active.append(j)
-                elif kind == "dist_end":
-                    active.remove(j)
-            s0, s1 = cuts[k], cuts[k + 1]
-            starts.append(s0)
-            ends.append(s1)
-            r = jnp.clip(clamp[b] - s0, 0.0, s1 - s0)
-            rigid.append(r)
-            nodes = s0 + r + jnp.asarray(TAPER_NODES) * (s1 - s0 - r)
-            t, d = _thickness_depth(finger, geo, b, nodes)
-            stiffness.append(section_stiffness(finger.material, t, d, finger.torsion))
-            f = jnp.zeros(3)
-            for j in active:
-                f = f + finger.loads[j].force_per_length
-            force.append(f)
-            beams.append(b)
-    beams = np.asarray(beams)
-    start_s = jnp.stack(starts)
+                if kind in ("dist_start", "dist_end"):
+                    active[j] = kind == "dist_start"
+                elif kind == "support_end":
+                    inside = False
+            beam.append(b)
+            start.append(cuts[k])
+            end.append(cuts[k + 1])
+            loads.append(active.copy())
+            supported.append(float(inside))
+    return _Layout(
+        np.asarray(beam),
+        np.asarray(start),
+        np.asarray(end),
+        np.asarray(loads).reshape(len(beam), n_loads),
+        np.asarray(supported),
+    )
+
+
+def _anchors(topo: Topology, finger: Finger, geo: Geometry):
+    cb, ad = finger.crossbeams, finger.adaptor
+    first = [ld.s if isinstance(ld, PointLoad) else ld.s_range[0] for ld in finger.loads]
+    second = [ld.s if isinstance(ld, PointLoad) else ld.s_range[1] for ld in finger.loads]
+    support = jnp.zeros(()) if ad.support_length is None else ad.support_length
+    parts = [jnp.zeros(1), geo.length, cb.front_s, cb.back_s]
+    parts += [jnp.stack(first), jnp.stack(second)] if finger.loads else []
+    return jnp.concatenate(parts + [support[None]])
+
+
+def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable:
+    lay = topo.layout
+    beams = lay.beam
+    anchors = _anchors(topo, finger, geo)
+    start_s = jnp.asarray(lay.start) @ anchors
+    length = jnp.asarray(lay.end) @ anchors - start_s
+    ad, cb = finger.adaptor, finger.crossbeams
+    zero_c = jnp.zeros(topo.n_crossbeams)
+    clamp = jnp.concatenate([jnp.stack([ad.front_clamp_length, ad.back_clamp_length]), zero_c])
+    rigid = jnp.clip(clamp[beams] - start_s, 0.0, length)
+
+    # Sections: thickness linear from base (t0) to tip (t1) along each beam.
+    def ends(sec):
+        tip = sec.thickness if sec.tip_thickness is None else sec.tip_thickness
+        return sec.thickness, tip
+
+    (f0, f1), (b0, b1) = ends(finger.front), ends(finger.back)
+    t0 = jnp.concatenate([jnp.stack([f0, b0]), cb.thickness])[beams]
+    t1 = jnp.concatenate([jnp.stack([f1, b1]), cb.thickness])[beams]
+    depth = jnp.concatenate([jnp.stack([finger.front.depth, finger.back.depth]), cb.depth])
+    nodes = (start_s + rigid)[:, None] + jnp.asarray(TAPER_NODES)[None] * (length - rigid)[:, None]
+    thick = t0[:, None] + (t1 - t0)[:, None] * nodes / geo.length[beams][:, None]
+    stiffness = section_stiffness(finger.material, thick, depth[beams][:, None], finger.torsion)
+
+    per_length = [
+        jnp.zeros(3) if isinstance(ld, PointLoad) else ld.force_per_length for ld in finger.loads
+    ]
+    force = (
+        jnp.asarray(lay.loads) @ jnp.stack(per_length) if per_length else jnp.zeros((len(beams), 3))
+    )
+
     kappa = geo.curvature[beams]
     theta = geo.theta[beams] + kappa * start_s
     point = jax.vmap(arc_point)(geo.base[beams], geo.theta[beams], kappa, start_s)
     zero = jnp.zeros_like(kappa)
+    if topo.contact is None:
+        contact = jnp.zeros((len(beams), 0))
+    else:
+        main = jnp.asarray((beams < 2).astype(np.float64))
+        support = jnp.asarray(lay.supported) * float(topo.contact.support)
+        half = 0.5 * thick[:, jnp.asarray([0, 3])]
+        shared = global_params(finger, geo)
+        contact = jnp.concatenate(
+            [
+                main[:, None],
+                support[:, None],
+                half,
+                jnp.broadcast_to(shared, (len(beams), shared.shape[0])),
+            ],
+            axis=1,
+        )
     return SegmentTable(
         start_s=start_s,
-        length=jnp.stack(ends) - start_s,
-        rigid=jnp.stack(rigid),
-        stiffness=jnp.stack(stiffness),
-        force=jnp.stack(force),
+        length=length,
+        rigid=rigid,
+        contact=contact,
+        stiffness=stiffness,
+        force=force,
         precurvature=jnp.stack([zero, kappa, zero], axis=-1),
         theta=theta,
         point=point,

@@ -107,6 +107,7 @@ def solve_cantilever(
         start_s=start_s,
         length=jnp.full(segments, L),
         rigid=jnp.zeros(segments),
+        contact=jnp.zeros((segments, 0)),
         stiffness=section_stiffness(material, t, section.depth, torsion),
         force=z3,
         precurvature=z3,

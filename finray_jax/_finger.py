@@ -8,7 +8,9 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._contact import Contact
 from ._geometry import geometry, main_beam_arc, xz
+from ._objects import AbstractObject
 from ._types import as_float
 
 BASE_KINDS = ("clamped", "pinned", "free")
@@ -69,12 +71,17 @@ class Adaptor(eqx.Module):
     front_clamp_length, back_clamp_length: length from the base held rigidly by the
         adaptor (mm, continuous design values; needs a clamped base when positive).
         Crossbeams landing inside a clamped length attach to the rigid adaptor.
+    support_length: l_s (mm) or None. The modified adaptor's rigid support behind the
+        back beam over [back_clamp_length, l_s]: it stops the back beam moving backward
+        but lets it move forward (unilateral penalty contact, see `Contact`). Whether
+        there is a support is static; its length is a design value.
     """
 
     front_base: str = eqx.field(static=True, default="clamped")
     back_base: str = eqx.field(static=True, default="clamped")
     front_clamp_length: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
     back_clamp_length: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
+    support_length: Float[Array, ""] | None = eqx.field(converter=_optional_float, default=None)
 
 
 class AbstractLoad(eqx.Module):
@@ -114,6 +121,7 @@ class Finger(eqx.Module):
     positive turns its tangent from +z toward +x. Arc lengths (attachments, loads) are
     measured along the arc.
     torsion: "paper" uses G (Ixx + Iyy); "rectangle" the Saint-Venant constant.
+    objects: rigid objects (Circle, Ellipse, ...) the beams may touch; contact: how.
     """
 
     material: Material
@@ -128,6 +136,8 @@ class Finger(eqx.Module):
     front_curvature: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
     back_curvature: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
     torsion: str = eqx.field(static=True, default="paper")
+    objects: tuple[AbstractObject, ...] = ()
+    contact: Contact = Contact()
 
     @property
     def n_crossbeams(self) -> int:

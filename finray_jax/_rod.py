@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from ._contact import ContactSpec, contact_load
 from ._rotation import exp_so3, frame_mismatch, hat, planar_frame
 
 
@@ -103,10 +104,25 @@ class AbstractRodModel(eqx.Module):
     """
 
     tapered: bool = eqx.field(static=True, default=False)
+    contact: ContactSpec | None = eqx.field(static=True, default=None)
     name: ClassVar[str]
     n_unknown: ClassVar[int]  # unknowns per segment start state
     n_full: ClassVar[int]  # integrated state size
     n_stiff: ClassVar[int]  # stiffness entries per sample
+    n_head: ClassVar[int]  # parameters before the stiffness samples
+
+    def split(self, q):
+        """(stiffness samples, contact columns) of a parameter row."""
+        k = self.n_stiff * (4 if self.tapered else 1)
+        return q[self.n_head : self.n_head + k], q[self.n_head + k :]
+
+    def with_contact(self, q, p, t, tau, force, moment):
+        """Add the contact load at centreline point p, tangent t (3-vectors) to the
+        distributed force (3) and moment (3) per length."""
+        if self.contact is None:
+            return force, moment
+        f, l = contact_load(self.contact, self.split(q)[1], p[::2], t[::2], tau)
+        return force + jnp.stack([f[0], 0.0, f[1]]), moment + jnp.stack([0.0, l, 0.0])
 
 
 class PlanarRod(AbstractRodModel):
@@ -121,6 +137,7 @@ class PlanarRod(AbstractRodModel):
     n_unknown: ClassVar[int] = 6
     n_full: ClassVar[int] = 6
     n_stiff: ClassVar[int] = 3
+    n_head: ClassVar[int] = 5
 
     def pack(self, table):
         head = jnp.stack(
@@ -133,12 +150,13 @@ class PlanarRod(AbstractRodModel):
             ],
             axis=-1,
         )
-        return jnp.concatenate([head, _stiffness_rows(self, table, (0, 2, 4))], axis=-1)
+        stiff = _stiffness_rows(self, table, (0, 2, 4))
+        return jnp.concatenate([head, stiff, table.contact], axis=-1)
 
     def rhs(self, tau, y, q):
-        _, _, th, nx, nz, my = y
-        fx, fz, u2s = q[2], q[3], q[4]
-        kga, ea, ei = _stiffness_at(self, q[5:], tau)
+        x, z, th, nx, nz, my = y
+        u2s = q[4]
+        kga, ea, ei = _stiffness_at(self, self.split(q)[0], tau)
         c, s = jnp.cos(th), jnp.sin(th)
         n1 = c * nx - s * nz
         n3 = s * nx + c * nz
@@ -147,8 +165,17 @@ class PlanarRod(AbstractRodModel):
         dx = c * v1 + s * v3
         dz = -s * v1 + c * v3
         dth = my / ei + u2s
-        dmy = -(dz * nx - dx * nz)
-        return jnp.stack([dx, dz, dth, -fx, -fz, dmy])
+        zero = jnp.zeros_like(x)
+        f, l = self.with_contact(
+            q,
+            jnp.stack([x, zero, z]),
+            jnp.stack([s, zero, c]),
+            tau,
+            jnp.stack([q[2], zero, q[3]]),
+            jnp.zeros(3),
+        )
+        dmy = -(dz * nx - dx * nz) - l[1]
+        return jnp.stack([dx, dz, dth, -f[0], -f[2], dmy])
 
     @staticmethod
     def rigid_transport(y, q):
@@ -234,22 +261,25 @@ class SpatialRod(AbstractRodModel):
     n_unknown: ClassVar[int] = 12
     n_full: ClassVar[int] = 18
     n_stiff: ClassVar[int] = 6
+    n_head: ClassVar[int] = 8
 
     def pack(self, table):
         head = [table.length[:, None], table.rigid[:, None], table.force, table.precurvature]
-        return jnp.concatenate(head + [_stiffness_rows(self, table, range(6))], axis=-1)
+        stiff = _stiffness_rows(self, table, range(6))
+        return jnp.concatenate(head + [stiff, table.contact], axis=-1)
 
     def rhs(self, tau, y, q):
         R = y[3:12].reshape(3, 3)
         n, m = y[12:15], y[15:18]
-        f, ustar = q[2:5], q[5:8]
-        k = _stiffness_at(self, q[8:], tau)
+        ustar = q[5:8]
+        k = _stiffness_at(self, self.split(q)[0], tau)
         kse, kbt = k[0:3], k[3:6]
         v = (R.T @ n) / kse + jnp.array([0.0, 0.0, 1.0])
         u = (R.T @ m) / kbt + ustar
         dp = R @ v
         dR = R @ hat(u)
-        return jnp.concatenate([dp, dR.reshape(9), -f, -jnp.cross(dp, n)])
+        f, l = self.with_contact(q, y[0:3], R[:, 2], tau, q[2:5], jnp.zeros(3))
+        return jnp.concatenate([dp, dR.reshape(9), -f, -jnp.cross(dp, n) - l])
 
     @staticmethod
     def rigid_transport(y, q):
@@ -320,8 +350,8 @@ class SpatialRod(AbstractRodModel):
         return jnp.concatenate([point, jnp.stack([z, z, z, z, z, z, z, z, z])])
 
 
-def rod_model(mode: str, tapered: bool = False) -> AbstractRodModel:
-    return {"planar": PlanarRod, "spatial": SpatialRod}[mode](tapered=tapered)
+def rod_model(mode: str, tapered: bool = False, contact=None) -> AbstractRodModel:
+    return {"planar": PlanarRod, "spatial": SpatialRod}[mode](tapered=tapered, contact=contact)
 
 
 def _stiffness_rows(model, table, columns):

@@ -102,6 +102,23 @@ class _Newton(eqx.Module):
     sign: jax.Array
 
 
+def _backtrack(problem, lam, y, dy, r, max_halvings=12):
+    """Shorten a Newton step until the residual norm decreases (Armijo, factor 1/2).
+
+    Contact penalties make the residual grow fast with penetration; a full step taken from
+    a state without contact can run deep into an object, so the step is cut back."""
+    norm0 = jnp.sum(r * r)
+
+    def worse(c):
+        a, k = c
+        rr = _natural_fn(y - a * dy, (problem, lam))
+        n = jnp.sum(rr * rr)
+        return (~(n <= (1.0 - 1e-4 * a) * norm0)) & (k < max_halvings)
+
+    a, _ = lax.while_loop(worse, lambda c: (0.5 * c[0], c[1] + 1), (jnp.ones(()), 0))
+    return a * dy
+
+
 def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
     """Newton's method on the natural residual with a dense LU per iteration.
 
@@ -111,7 +128,10 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
     Newton is in its quadratic regime and the predicted next step, step_k^3 / step_(k-1)^2,
     is below that: this saves the iteration that would only confirm convergence. (The
     residual reported in the Solution is always evaluated at the returned point.)
+    With contact (objects or a support) every step is backtracked until the residual
+    decreases.
     """
+    line_search = problem.topo.contact is not None
 
     def body(st: _Newton):
         J, r = jax.jacfwd(
@@ -122,6 +142,8 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
         swaps = jnp.sum(piv != jnp.arange(piv.shape[0], dtype=piv.dtype))
         sign = jnp.prod(jnp.sign(d)) * jnp.where(swaps % 2 == 0, 1.0, -1.0)
         dy = jax.scipy.linalg.lu_solve((lu, piv), r)
+        if line_search:
+            dy = _backtrack(problem, lam, st.y, dy, r)
         y = st.y - dy
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))

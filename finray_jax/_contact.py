@@ -1,0 +1,185 @@
+"""Penalty contact between the main beams and rigid objects, and the adaptor's support.
+
+A beam is a band of half-thickness h around its centreline p(s). Its gap to an object is
+g = d(p) - h, with d the object's signed distance, so the band's surface touches the
+object at g = 0 (exact for either face of the band). The object pushes the beam along the
+distance gradient (the outward normal) with a force per unit length
+
+    q(g) = k delta softplus(-g / delta - c),   c = ONSET,
+
+a smooth ramp: q ~ k (-g - c delta) once the penetration exceeds c delta, and below
+k delta e^-c at zero gap (a negligible pre-force). Penetration therefore equals
+c delta + q / k. With friction coefficient mu the object also drags the beam along the
+beam's tangent t with mu q tanh((w . t) / eps), w being the unit direction in which the
+object moves relative to the finger (the slip direction): a regularised Coulomb law for a
+sliding contact. The friction force acts at the band's surface and so also applies a
+moment per length about the centreline.
+
+The adaptor's rigid support behind the back beam is a line through the back beam's base
+along its undeformed tangent, acting over s in [0, l_s]: it pushes the back beam forward
+(toward the front beam) by the same law, with the gap measured as the back beam's
+displacement toward the support, and never pulls it.
+
+All contact enters the rod equations as a distributed load n' = -f, m' = -p' x n - l, so
+it is solved inside the equilibrium, and is smooth in every state and design value.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._objects import distance_by_key, param_size
+from ._types import as_float
+
+ONSET = 14.0  # pre-force at zero gap: k delta e^-14 (about 1e-6 k delta)
+N_SEGMENT = 4  # per-segment contact columns: object flag, support flag, h at start, h at end
+N_GLOBAL = 11  # k, delta, mu, eps, slip (2), support point (2), support normal (2), unused
+
+
+class Contact(eqx.Module):
+    """How contact is modelled (penalty law, friction, resolution).
+
+    stiffness: k, contact force per unit length per mm of penetration (N/mm^2). None:
+        chosen from the finger, 4 E depth / thickness of the front beam.
+    max_penetration: the allowed penetration as a fraction of the front beam's thickness
+        (default 0.02). The smoothing is delta = max_penetration * thickness / 40, and
+        `grasp` stiffens k until the largest penetration stays below the limit.
+    friction: Coulomb coefficient mu (0: frictionless).
+    friction_regularisation: eps of tanh((w . t) / eps) (dimensionless; the slip
+        direction w and the tangent t are unit vectors).
+    slip_direction: w, the unit direction (x, z) in which the object slides relative to
+        the finger (friction acts only with a non-zero w; `release_force` sets it).
+    segment_length: main beams are cut into shooting segments no longer than this (mm),
+        so that the fixed-step integration resolves the contact (static).
+    """
+
+    stiffness: jax.Array | None = eqx.field(
+        converter=lambda x: None if x is None else as_float(x), default=None
+    )
+    max_penetration: jax.Array = eqx.field(converter=as_float, default=0.02)
+    friction: jax.Array = eqx.field(converter=as_float, default=0.0)
+    friction_regularisation: jax.Array = eqx.field(converter=as_float, default=0.05)
+    slip_direction: jax.Array = eqx.field(converter=as_float, default=(0.0, 0.0))
+    segment_length: float = eqx.field(static=True, default=5.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactSpec:
+    """Static layout of the contact parameters: object keys and whether there is a
+    support."""
+
+    objects: tuple = ()
+    support: bool = False
+
+    @property
+    def sizes(self):
+        return tuple(param_size(k) for k in self.objects)
+
+    @property
+    def n_params(self):
+        return N_SEGMENT + N_GLOBAL + sum(self.sizes)
+
+
+def contact_spec(finger):
+    """The static contact layout of a finger (None without objects or support)."""
+    support = finger.adaptor.support_length is not None
+    if not finger.objects and not support:
+        return None
+    return ContactSpec(tuple(o.key() for o in finger.objects), support)
+
+
+def penalty(g, k, delta):
+    """Contact force per unit length at gap g (negative: penetration)."""
+    return k * delta * jax.nn.softplus(-g / delta - ONSET)
+
+
+def default_stiffness(finger):
+    return 4.0 * finger.material.E * finger.front.depth / finger.front.thickness
+
+
+def smoothing(finger):
+    return finger.contact.max_penetration * finger.front.thickness / 40.0
+
+
+def global_params(finger, geo):
+    """The contact parameter vector shared by every segment."""
+    c = finger.contact
+    k = default_stiffness(finger) if c.stiffness is None else c.stiffness
+    # The support line: through the back beam's base, along its undeformed tangent, with
+    # the normal pointing forward (toward the front beam's side).
+    th = geo.theta[1]
+    point = jnp.stack([geo.base[1, 0], geo.base[1, 2]])
+    normal = -jnp.stack([jnp.cos(th), -jnp.sin(th)])  # -d1 of the back beam
+    objects = [o.params() for o in finger.objects]
+    head = jnp.stack(
+        [
+            k,
+            smoothing(finger),
+            c.friction,
+            c.friction_regularisation,
+            *c.slip_direction,
+            *point,
+            *normal,
+            jnp.zeros(()),
+        ]
+    )
+    return jnp.concatenate([head] + objects)
+
+
+def _object_distances(spec: ContactSpec, objects_flat, p):
+    out, i = [], 0
+    for key, n in zip(spec.objects, spec.sizes):
+        out.append((distance_by_key(key), objects_flat[i : i + n]))
+        i += n
+    return out
+
+
+def contact_load(spec: ContactSpec, q, p, t, tau):
+    """Contact force per length (fx, fz) and moment per length l_y on a beam point.
+
+    q: the segment's contact columns (N_SEGMENT, then the global parameters).
+    p, t: centreline point and unit tangent, as (x, z) pairs; tau in [0, 1] along the
+    segment's flexible part.
+    """
+    obj_flag, sup_flag, h0, h1 = q[0], q[1], q[2], q[3]
+    g = q[N_SEGMENT:]
+    k, delta, mu, eps = g[0], g[1], g[2], g[3]
+    slip, s_point, s_normal = g[4:6], g[6:8], g[8:10]
+    h = h0 + (h1 - h0) * tau
+    force = jnp.zeros(2)
+    moment = jnp.zeros(())
+    slide = mu * jnp.tanh(jnp.dot(slip, t) / eps)
+    for dist, params in _object_distances(spec, g[N_GLOBAL:], p):
+        d, normal = jax.value_and_grad(lambda x, params=params, dist=dist: dist(params, x))(p)
+        qn = obj_flag * penalty(d - h, k, delta)
+        f_t = qn * slide * t
+        force = force + qn * normal + f_t
+        # friction acts at the band's surface, p - h normal: l = (-h normal) x f_t
+        moment = moment - h * (normal[1] * f_t[0] - normal[0] * f_t[1])
+    if spec.support:
+        gap = jnp.dot(p - s_point, s_normal)
+        force = force + sup_flag * penalty(gap, k, delta) * s_normal
+    return force, moment
+
+
+def beam_gaps(spec: ContactSpec, q, p, tau):
+    """Gap of a beam point to every object and to the support (large when inactive)."""
+    obj_flag, sup_flag, h0, h1 = q[0], q[1], q[2], q[3]
+    g = q[N_SEGMENT:]
+    h = h0 + (h1 - h0) * tau
+    big = 1e6
+    gaps = [
+        jnp.where(obj_flag > 0, dist(params, p) - h, big)
+        for dist, params in _object_distances(spec, g[N_GLOBAL:], p)
+    ]
+    if spec.support:
+        gaps.append(jnp.where(sup_flag > 0, jnp.dot(p - g[6:8], g[8:10]), big))
+    return jnp.stack(gaps)
+
+
+def pressure(spec: ContactSpec, q, p, tau):
+    """Normal contact force per length from every object (N/mm) and from the support."""
+    g = q[N_SEGMENT:]
+    return jnp.stack([penalty(x, g[0], g[1]) for x in beam_gaps(spec, q, p, tau)])
