@@ -3,17 +3,15 @@
 A beam is a band of half-thickness h around its centreline p(s). Its gap to an object is
 g = d(p) - h, with d the object's signed distance, so the band's surface touches the
 object at g = 0 (exact for either face of the band). The object pushes the beam along the
-distance gradient (the outward normal) with a force per unit length
-
-    q(g) = k delta softplus(-g / delta - c),   c = ONSET,
-
-a smooth ramp: q ~ k (-g - c delta) once the penetration exceeds c delta, and below
-k delta e^-c at zero gap (a negligible pre-force). Penetration therefore equals
-c delta + q / k. With friction coefficient mu the object also drags the beam along the
-beam's tangent t with mu q tanh((w . t) / eps), w being the unit direction in which the
-object moves relative to the finger (the slip direction): a regularised Coulomb law for a
-sliding contact. The friction force acts at the band's surface and so also applies a
-moment per length about the centreline.
+distance gradient (the outward normal) with a force per unit length q = k ramp(-g), where
+the ramp is zero for no penetration, quadratic over the first delta of penetration and
+linear beyond (continuously differentiable: no kink for Newton, and no force at all
+before touching). Penetration therefore equals delta / 2 + q / k once q > k delta / 2.
+With friction coefficient mu the object also drags the beam along the beam's tangent t
+with mu q tanh((w . t) / eps), w being the unit direction in which the object moves
+relative to the finger (the slip direction): a regularised Coulomb law for a sliding
+contact. The friction force acts at the band's surface and so also applies a moment per
+length about the centreline.
 
 The adaptor's rigid support behind the back beam is a line through the back beam's base
 along its undeformed tangent, acting over s in [0, l_s]: it pushes the back beam forward
@@ -33,7 +31,6 @@ import jax.numpy as jnp
 from ._objects import distance_by_key, param_size
 from ._types import as_float
 
-ONSET = 14.0  # pre-force at zero gap: k delta e^-14 (about 1e-6 k delta)
 N_SEGMENT = 4  # per-segment contact columns: object flag, support flag, h at start, h at end
 N_GLOBAL = 11  # k, delta, mu, eps, slip (2), support point (2), support normal (2), unused
 
@@ -42,9 +39,9 @@ class Contact(eqx.Module):
     """How contact is modelled (penalty law, friction, resolution).
 
     stiffness: k, contact force per unit length per mm of penetration (N/mm^2). None:
-        chosen from the finger, 4 E depth / thickness of the front beam.
+        chosen from the finger, E depth / thickness of the front beam.
     max_penetration: the allowed penetration as a fraction of the front beam's thickness
-        (default 0.02). The smoothing is delta = max_penetration * thickness / 40, and
+        (default 0.02). The smoothing is delta = max_penetration * thickness / 2, and
         `grasp` stiffens k until the largest penetration stays below the limit.
     friction: Coulomb coefficient mu (0: frictionless).
     friction_regularisation: eps of tanh((w . t) / eps) (dimensionless; the slip
@@ -91,16 +88,20 @@ def contact_spec(finger):
 
 
 def penalty(g, k, delta):
-    """Contact force per unit length at gap g (negative: penetration)."""
-    return k * delta * jax.nn.softplus(-g / delta - ONSET)
+    """Contact force per unit length at gap g (negative: penetration): k times a ramp in
+    the penetration x = -g that is 0 for x <= 0, x^2 / (2 delta) up to delta, then
+    x - delta / 2 (C1)."""
+    x = -g
+    quad = jnp.clip(x, 0.0, delta)
+    return k * (quad * quad / (2.0 * delta) + jnp.maximum(x - delta, 0.0))
 
 
 def default_stiffness(finger):
-    return 4.0 * finger.material.E * finger.front.depth / finger.front.thickness
+    return finger.material.E * finger.front.depth / finger.front.thickness
 
 
 def smoothing(finger):
-    return finger.contact.max_penetration * finger.front.thickness / 40.0
+    return finger.contact.max_penetration * finger.front.thickness / 2.0
 
 
 def global_params(finger, geo):

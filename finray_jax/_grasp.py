@@ -1,0 +1,398 @@
+"""Grasping: closing a finger on rigid objects, contact outputs and the holding force.
+
+The finger stays where it is; closing the gripper by d moves every object by -d w
+relative to the finger (w: the closing direction, the unit vector in which the finger's
+base moves, default -x: from the back beam toward the front beam). Each equilibrium is a
+Newton solve of the full contact problem (`solve_finger` with objects), warm started from
+the previous one; the closing displacement is stepped, and a step that fails is halved.
+With a two-finger parallel grasp (`symmetric=True`) the second finger is the mirror image
+of the first about the object's plane of symmetry, so only one finger is solved and the
+holding force is twice that finger's.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._contact import default_stiffness, penalty, smoothing
+from ._finger import BACK, FRONT, Finger, FingerError
+from ._rod import Integrator
+from ._solution import RESULTS, BeamSolution, Solution
+from ._solve import SolverOptions, _direct_core, prepare
+from ._types import as_float
+
+GRASP_STEPS = 16  # default integration steps per segment for contact problems
+
+
+class ContactResult(eqx.Module):
+    """Contact outputs of one equilibrium (one finger).
+
+    force: total force (x, y, z) the objects exert on the finger (N).
+    normal_force: integral of the normal contact pressure over the beams (N).
+    pressure_front, pressure_back: normal contact force per unit length (N/mm) at the
+        points of the front and back beams' solutions (`Solution.front.s`, `.back.s`).
+    contact_length: arc length in contact (penetration > 0), both beams (mm).
+    max_penetration: largest penetration of a beam's surface into an object (mm).
+    support_force: total force of the adaptor's support on the back beam (N).
+    crossbeam_force: mean force the crossbeams apply to the front beam (x, y, z) (N): the
+        paper's Fig. 4 metric.
+    actuator_force: force along the closing direction the actuator applies to the
+        finger's adaptor (N): the base reactions projected on the closing direction.
+    """
+
+    force: jax.Array
+    normal_force: jax.Array
+    pressure_front: jax.Array
+    pressure_back: jax.Array
+    contact_length: jax.Array
+    max_penetration: jax.Array
+    support_force: jax.Array
+    crossbeam_force: jax.Array
+    actuator_force: jax.Array
+
+
+def _half_thickness(finger: Finger, beam: int, s, length):
+    sec = finger.front if beam == FRONT else finger.back
+    tip = sec.thickness if sec.tip_thickness is None else sec.tip_thickness
+    return 0.5 * (sec.thickness + (tip - sec.thickness) * s / length)
+
+
+def _trapezoid(y, s):
+    return jnp.sum(0.5 * (y[1:] + y[:-1]) * (s[1:] - s[:-1])[..., None], axis=0)
+
+
+@eqx.filter_jit
+def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
+    """Contact outputs of a solved finger (objects, support, crossbeams, reactions)."""
+    from ._geometry import geometry
+
+    geo = geometry(finger)
+    c = finger.contact
+    k = default_stiffness(finger) if c.stiffness is None else c.stiffness
+    delta = smoothing(finger)
+    clamp = (finger.adaptor.front_clamp_length, finger.adaptor.back_clamp_length)
+    force = jnp.zeros(3)
+    normal = jnp.zeros(())
+    length = jnp.zeros(())
+    pen = jnp.zeros(())
+    pressures = []
+    for beam, bs in ((FRONT, sol.front), (BACK, sol.back)):
+        p = bs.position[:, ::2]
+        h = _half_thickness(finger, beam, bs.s, geo.length[beam])
+        free = jax.nn.sigmoid((bs.s - clamp[beam]) / 1e-6)  # no contact inside a clamp
+        total = jnp.zeros_like(bs.s)
+        for obj in finger.objects:
+            q = obj.params()
+            d, grad = jax.vmap(jax.value_and_grad(lambda x, q=q, obj=obj: obj.distance(q, x)))(p)
+            gap = d - h
+            qn = free * penalty(gap, k, delta)
+            t = bs.frame[:, ::2, 2]
+            slide = c.friction * jnp.tanh((t @ c.slip_direction) / c.friction_regularisation)
+            f = qn[:, None] * (grad + slide[:, None] * t)
+            force = force + jnp.insert(_trapezoid(f, bs.s), 1, 0.0)
+            total = total + qn
+            pen = jnp.maximum(pen, jnp.max(jnp.where(free > 0.5, -gap, 0.0)))
+            inside = (gap < 0.0) & (free > 0.5)
+            length = length + jnp.sum(
+                jnp.where(inside[1:] & inside[:-1], bs.s[1:] - bs.s[:-1], 0.0)
+            )
+        normal = normal + _trapezoid(total[:, None], bs.s)[0]
+        pressures.append(total)
+    support = jnp.zeros(3)
+    if finger.adaptor.support_length is not None:
+        bs = sol.back
+        th = geo.theta[BACK]
+        nrm = -jnp.stack([jnp.cos(th), -jnp.sin(th)])
+        gap = (bs.position[:, ::2] - geo.base[BACK, ::2]) @ nrm
+        inside = jax.nn.sigmoid((finger.adaptor.support_length - bs.s) / 1e-6)
+        qs = inside * jax.nn.sigmoid((bs.s - clamp[BACK]) / 1e-6) * penalty(gap, k, delta)
+        support = jnp.insert(_trapezoid(qs[:, None] * nrm[None], bs.s), 1, 0.0)
+    reactions = sol.reactions_front.force + sol.reactions_back.force
+    w = jnp.insert(as_float(direction), 1, 0.0)
+    cb = sol.crossbeam_wrenches.front_force
+    return ContactResult(
+        force=force,
+        normal_force=normal,
+        pressure_front=pressures[0],
+        pressure_back=pressures[1],
+        contact_length=length,
+        max_penetration=pen,
+        support_force=support,
+        crossbeam_force=jnp.mean(cb, axis=0) if cb.shape[0] else jnp.zeros(3),
+        actuator_force=jnp.dot(reactions, w),
+    )
+
+
+class GraspSolution(eqx.Module):
+    """A grasp: the finger's equilibrium at a closing displacement, and its contact.
+
+    closing: the closing displacement d (mm); finger: the finger with its objects where
+    they are relative to it at that closing; stiffness: the penalty stiffness used (after
+    any automatic stiffening); holding_factor: 2 for a symmetric two-finger grasp, else 1.
+    """
+
+    solution: Solution
+    contact: ContactResult
+    finger: Finger
+    closing: jax.Array
+    stiffness: jax.Array
+    steps: int = eqx.field(static=True)
+    holding_factor: int = eqx.field(static=True, default=2)
+
+    @property
+    def status(self) -> str:
+        return self.solution.status
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.solution.result == RESULTS.successful)
+
+
+def _moved(finger: Finger, displacement) -> Finger:
+    objs = tuple(o.moved(displacement) for o in finger.objects)
+    return eqx.tree_at(lambda f: f.objects, finger, objs)
+
+
+def _with_stiffness(finger: Finger, k) -> Finger:
+    c = eqx.tree_at(lambda c: c.stiffness, finger.contact, as_float(k),
+                    is_leaf=lambda x: x is None)
+    return eqx.tree_at(lambda f: f.contact, finger, c)
+
+
+def _unit(direction, name):
+    w = np.asarray(direction, dtype=np.float64)
+    if w.shape != (2,) or not np.all(np.isfinite(w)) or np.linalg.norm(w) == 0:
+        raise FingerError(f"{name} must be a non-zero (x, z) direction, got {w.tolist()}")
+    return w / np.linalg.norm(w)
+
+
+class _Stepper:
+    """Warm-started equilibria along a path of object displacements, with step halving."""
+
+    def __init__(self, finger, mode, integrator, options):
+        self.finger = finger
+        self.topo = prepare(finger, mode)
+        self.integrator = integrator
+        self.options = options
+        self.calls = 0
+
+    def solve(self, finger, init):
+        self.calls += 1
+        sol, ok = _direct_core(self.topo, self.integrator, self.options, finger, init)
+        return sol, bool(ok)
+
+    def follow(self, at, t0, t1, init, first_step, min_step):
+        """Equilibria from parameter t0 to t1 (finger = at(t)), each started from a linear
+        extrapolation of the last two; returns (t, solution, ok) of the last accepted
+        point. Steps grow after easy solves and halve after failures."""
+        t, sol, h = t0, init, first_step
+        prev = None  # (t, unknowns) of the point before
+        while t < t1 - 1e-12:
+            t_try = min(t + h, t1)
+            guess = None if sol is None else sol.unknowns
+            if prev is not None and guess is not None:
+                guess = guess + (guess - prev[1]) * ((t_try - t) / (t - prev[0]))
+            trial, ok = self.solve(at(t_try), guess)
+            if ok:
+                if sol is not None:
+                    prev = (t, sol.unknowns)
+                easy = int(trial.iterations) <= 6
+                t, sol, h = t_try, trial, min((1.5 if easy else 1.0) * h, t1 - t0)
+            else:
+                h = 0.5 * h
+                if h < min_step:
+                    return t, sol, False
+        return t, sol, True
+
+
+def _check_objects(finger: Finger):
+    if not finger.objects:
+        raise FingerError("grasp needs at least one object (Finger.objects is empty)")
+
+
+def grasp(
+    finger: Finger,
+    closing=None,
+    *,
+    actuator_force=None,
+    direction=(-1.0, 0.0),
+    symmetric: bool = True,
+    mode: str = "planar",
+    integrator: Integrator = Integrator(steps=GRASP_STEPS),
+    options: SolverOptions = SolverOptions(),
+    stiffen: bool = True,
+) -> GraspSolution:
+    """Close the finger on its objects and solve the contact equilibrium.
+
+    closing: displacement (mm) of the finger's base toward the objects along `direction`;
+        or actuator_force: the force (N) the actuator applies along `direction` (the
+        closing displacement is then found by a safeguarded secant iteration).
+    stiffen: when the largest penetration exceeds `Contact.max_penetration` of the front
+        beam's thickness, raise the penalty stiffness and solve again (warm started).
+    """
+    _check_objects(finger)
+    if (closing is None) == (actuator_force is None):
+        raise FingerError("grasp needs exactly one of closing= and actuator_force=")
+    w = _unit(direction, "direction")
+    if closing is not None:
+        d = float(np.asarray(closing))
+        if not np.isfinite(d) or d < 0:
+            raise FingerError(f"closing must be a non-negative displacement (mm), got {d}")
+    else:
+        fa = float(np.asarray(actuator_force))
+        if not np.isfinite(fa) or fa < 0:
+            raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
+    stepper = _Stepper(finger, mode, integrator, options)
+    k = float(default_stiffness(finger) if finger.contact.stiffness is None
+              else finger.contact.stiffness)
+    finger = _with_stiffness(finger, k)
+
+    def at(t):
+        return _moved(finger, -t * w)
+
+    if closing is not None:
+        t, sol, ok = stepper.follow(at, 0.0, d, None, d / 8.0, 1e-4 * max(d, 1.0))
+    else:
+        t, sol, ok = _find_closing(stepper, at, w, fa)
+    if sol is None:
+        sol, _ = stepper.solve(at(0.0), None)
+    res = contact_result(at(t), sol, w)
+    limit = float(finger.contact.max_penetration * finger.front.thickness)
+    rounds = 0
+    while ok and stiffen and float(res.max_penetration) > limit and rounds < 6:
+        # penetration = delta / 2 + q / k: scale k so that q / k fits in what is left
+        onset = float(0.5 * smoothing(finger))
+        excess = (float(res.max_penetration) - onset) / max(limit - onset, 1e-12)
+        k *= 1.5 * max(excess, 1.0)
+        finger = _with_stiffness(finger, k)
+        sol2, ok = stepper.solve(at(t), sol.unknowns)
+        if ok:
+            sol = sol2
+            res = contact_result(at(t), sol, w)
+        rounds += 1
+    if not ok:
+        sol = eqx.tree_at(lambda s: s.result, sol, RESULTS.where(
+            jnp.asarray(False), RESULTS.successful, RESULTS.nonlinear_divergence))
+    return GraspSolution(sol, res, at(t), jnp.asarray(t), jnp.asarray(k), stepper.calls,
+                         2 if symmetric else 1)
+
+
+def _find_closing(stepper, at, w, target):
+    """Closing displacement at which the actuator force equals `target` (secant on a
+    bracket, each trial warm started)."""
+    lo, f_lo, sol_lo = 0.0, 0.0, None
+    hi, sol = 1.0, None
+    # Grow the bracket until the actuator force exceeds the target.
+    while True:
+        t, sol, ok = stepper.follow(at, lo, hi, sol_lo, hi - lo, 1e-4)
+        if not ok:
+            return t, sol, False
+        f_hi = float(contact_result(at(hi), sol, w).actuator_force)
+        if f_hi >= target:
+            break
+        lo, f_lo, sol_lo = hi, f_hi, sol
+        hi *= 2.0
+        if hi > 1e3:
+            return t, sol, False
+    sol_hi = sol
+    for _ in range(40):
+        t = hi - (f_hi - target) * (hi - lo) / max(f_hi - f_lo, 1e-300)
+        t = min(max(t, lo + 0.05 * (hi - lo)), hi - 0.05 * (hi - lo))
+        init = sol_lo if sol_lo is not None else sol_hi
+        sol, ok = stepper.solve(at(t), init.unknowns)
+        if not ok:
+            return t, sol, False
+        f = float(contact_result(at(t), sol, w).actuator_force)
+        if abs(f - target) <= 1e-8 * max(target, 1e-3):
+            return t, sol, True
+        if f < target:
+            lo, f_lo, sol_lo = t, f, sol
+        else:
+            hi, f_hi, sol_hi = t, f, sol
+    return t, sol, True
+
+
+class ReleaseTrace(eqx.Module):
+    """The quasi-static pull-out of the object: pull distance, holding force (all fingers),
+    and the peak."""
+
+    pull: np.ndarray
+    force: np.ndarray
+    normal_force: np.ndarray
+    peak: float
+    peak_pull: float
+    complete: bool  # the trace reached the loss of contact (else it stopped early)
+    message: str
+
+
+def release_force(
+    g: GraspSolution,
+    *,
+    pull_direction=(0.0, 1.0),
+    step: float = 1.0,
+    max_pull: float | None = None,
+    friction=None,
+    mode: str = "planar",
+    integrator: Integrator = Integrator(steps=GRASP_STEPS),
+    options: SolverOptions = SolverOptions(),
+) -> ReleaseTrace:
+    """Pull the grasped object along `pull_direction` (default +z: toward the tips) step by
+    step, solving the contact at every step, and report the largest resisting force.
+
+    The holding force at a step is the force the fingers exert on the object against the
+    pull: holding_factor x (contact force on this finger) . pull_direction. With friction
+    the object slides along the pull direction (the slip direction of the friction law).
+    The trace stops when the contact is lost, or at max_pull (default: the finger's
+    height).
+    """
+    w = _unit(pull_direction, "pull_direction")
+    if not (np.isfinite(step) and step > 0):
+        raise FingerError(f"step must be a positive distance (mm), got {step}")
+    finger = g.finger
+    c = finger.contact
+    c = eqx.tree_at(lambda c: c.slip_direction, c, as_float(w))
+    if friction is not None:
+        mu = float(friction)
+        if not np.isfinite(mu) or mu < 0:
+            raise FingerError(f"friction must be a non-negative coefficient, got {mu}")
+        c = eqx.tree_at(lambda c: c.friction, c, as_float(mu))
+    finger = eqx.tree_at(lambda f: f.contact, finger, c)
+    if max_pull is None:
+        max_pull = float(np.ptp(np.asarray(g.solution.front.position[:, 2]))) + 2 * step
+    stepper = _Stepper(finger, mode, integrator, options)
+
+    def at(t):
+        return _moved(finger, t * w)
+
+    pulls, forces, normals = [], [], []
+    sol = g.solution
+    t = 0.0
+    complete, message = False, "reached max_pull"
+    peak_normal = 0.0
+    while t < max_pull:
+        t_new, sol_new, ok = stepper.follow(at, t, t + step, sol, step, 1e-3 * step)
+        if t_new > t:
+            res = contact_result(at(t_new), sol_new, w)
+            t, sol = t_new, sol_new
+            pulls.append(t)
+            forces.append(g.holding_factor * float(jnp.dot(res.force[::2], w)))
+            normals.append(float(res.normal_force))
+            peak_normal = max(peak_normal, normals[-1])
+            if normals[-1] < 1e-6 * max(peak_normal, 1e-12) or normals[-1] < 1e-9:
+                complete, message = True, "contact lost: the object is released"
+                break
+        if not ok:
+            message = f"equilibrium lost at pull {t:.4g} mm (the step could not be refined)"
+            break
+    f = np.asarray(forces)
+    i = int(np.argmax(f)) if len(f) else 0
+    return ReleaseTrace(
+        pull=np.asarray(pulls),
+        force=f,
+        normal_force=np.asarray(normals),
+        peak=float(f[i]) if len(f) else 0.0,
+        peak_pull=float(pulls[i]) if len(f) else 0.0,
+        complete=complete,
+        message=message,
+    )
