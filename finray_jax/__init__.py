@@ -9,6 +9,7 @@ if _os.environ.get("FINRAY_NO_AUTO_X64", "0") != "1":
 
 from ._cantilever import CantileverSolution as CantileverSolution
 from ._cantilever import solve_cantilever as solve_cantilever
+from ._contact import Contact as Contact
 from ._finger import Adaptor as Adaptor
 from ._finger import Crossbeams as Crossbeams
 from ._finger import DistributedLoad as DistributedLoad
@@ -18,6 +19,18 @@ from ._finger import Material as Material
 from ._finger import PointLoad as PointLoad
 from ._finger import Section as Section
 from ._finger import validate_finger as validate_finger
+from ._grasp import ContactResult as ContactResult
+from ._grasp import GraspSolution as GraspSolution
+from ._grasp import ReleaseTrace as ReleaseTrace
+from ._grasp import contact_result as contact_result
+from ._grasp import grasp as grasp
+from ._grasp import release_force as release_force
+from ._objects import AbstractObject as AbstractObject
+from ._objects import Circle as Circle
+from ._objects import Ellipse as Ellipse
+from ._objects import HalfPlane as HalfPlane
+from ._objects import Polygon as Polygon
+from ._objects import RoundedRectangle as RoundedRectangle
 from ._reference import ref_finger_a as ref_finger_a
 from ._rod import Integrator as Integrator
 from ._rod import PlanarRod as PlanarRod
@@ -30,5 +43,9 @@ from ._solve import SolverOptions as SolverOptions
 from ._solve import limit_load as limit_load
 from ._solve import solve_finger as solve_finger
 from ._solve import topology_of as topology_of
+from .batch import BatchResult as BatchResult
+from .batch import solve_batch as solve_batch
+from .design import get_design as get_design
+from .design import set_design as set_design
 
 __version__ = "0.1.0"

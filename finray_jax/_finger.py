@@ -9,7 +9,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._contact import Contact
-from ._geometry import geometry, main_beam_arc, xz
+from ._geometry import arc_point, geometry, main_beam_arc, xz
 from ._objects import AbstractObject
 from ._types import as_float
 
@@ -315,6 +315,21 @@ def validate_finger(finger: Finger) -> None:
                 f"got {kind!r}"
             )
 
+    sl = ad.support_length
+    if sl is not None:
+        ls = float(_finite("adaptor.support_length", _shaped("adaptor.support_length", sl, ())))
+        lc = float(_num(ad.back_clamp_length))
+        if not lc <= ls <= lb:
+            raise FingerError(
+                f"adaptor.support_length = {ls} must lie in [back_clamp_length, back beam "
+                f"length] = [{lc}, {lb:.6g}] (the support backs the back beam from the end "
+                "of the clamp)"
+            )
+        if float(_num(finger.back_curvature)) != 0.0:
+            raise FingerError("adaptor.support_length needs a straight back beam "
+                              f"(back_curvature = {float(_num(finger.back_curvature))})")
+    _validate_contact(finger)
+
     lengths = [lf, lb, *crossbeam_lengths(finger).tolist()]
     for j, load in enumerate(finger.loads):
         where = f"loads[{j}]"
@@ -353,3 +368,87 @@ def loads_in_plane(finger: Finger) -> bool:
         elif abs(float(load.total_force[1])) > 0:
             return False
     return True
+
+
+def _validate_contact(finger: Finger) -> None:
+    c = finger.contact
+    if c.stiffness is not None:
+        _positive("contact.stiffness", _shaped("contact.stiffness", c.stiffness, ()))
+    mp = float(_finite("contact.max_penetration", c.max_penetration))
+    if not 0.0 < mp < 0.5:
+        raise FingerError(f"contact.max_penetration must lie in (0, 0.5) (a fraction of the "
+                          f"front beam's thickness), got {mp}")
+    mu = float(_finite("contact.friction", c.friction))
+    if mu < 0:
+        raise FingerError(f"contact.friction must be non-negative, got {mu}")
+    _positive("contact.friction_regularisation", c.friction_regularisation)
+    _shaped("contact.slip_direction", _finite("contact.slip_direction", c.slip_direction), (2,))
+    if not (isinstance(c.segment_length, (int, float)) and c.segment_length > 0):
+        raise FingerError(f"contact.segment_length must be positive, got {c.segment_length!r}")
+    for i, obj in enumerate(finger.objects):
+        _validate_object(f"objects[{i}]", obj)
+    for i, obj in enumerate(finger.objects):
+        hit = _overlap(finger, obj)
+        if hit is not None:
+            beam, s, depth = hit
+            raise FingerError(
+                f"objects[{i}] ({obj.kind}) overlaps the {beam} beam at the start, at s = "
+                f"{s:.4g} mm by {depth:.4g} mm: place objects clear of the finger (the grasp "
+                "closes the finger onto them)"
+            )
+
+
+def _validate_object(where: str, obj) -> None:
+    from ._objects import AbstractObject
+
+    if not isinstance(obj, AbstractObject):
+        raise FingerError(f"{where} is not an object (Circle, Ellipse, ...): {obj!r}")
+    for name in ("center", "point", "normal"):
+        if hasattr(obj, name):
+            _shaped(f"{where}.{name}", _finite(f"{where}.{name}", getattr(obj, name)), (2,))
+    kind = obj.kind
+    if kind == "circle":
+        _positive(f"{where}.radius", _shaped(f"{where}.radius", obj.radius, ()))
+    elif kind == "ellipse":
+        _positive(f"{where}.semi_axes", _shaped(f"{where}.semi_axes", obj.semi_axes, (2,)))
+        _finite(f"{where}.angle", obj.angle)
+    elif kind == "rounded_rectangle":
+        half = _positive(f"{where}.half_size", _shaped(f"{where}.half_size", obj.half_size, (2,)))
+        r = float(_finite(f"{where}.corner_radius", obj.corner_radius))
+        if not 0.0 <= r <= float(np.min(half)):
+            raise FingerError(f"{where}.corner_radius must lie in [0, {float(np.min(half))}] "
+                              f"(the smaller half size), got {r}")
+        _finite(f"{where}.angle", obj.angle)
+    elif kind == "polygon":
+        v = _finite(f"{where}.vertices", obj.vertices)
+        if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
+            raise FingerError(f"{where}.vertices must be 3 or more (x, z) points, got {v.tolist()}")
+        e = np.roll(v, -1, axis=0) - v
+        turn = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+        if np.any(turn <= 0):
+            raise FingerError(f"{where}.vertices must form a convex polygon listed counter-"
+                              f"clockwise (x right, z up), got {v.tolist()}")
+        r = float(_finite(f"{where}.corner_radius", obj.corner_radius))
+        if r < 0:
+            raise FingerError(f"{where}.corner_radius must be non-negative, got {r}")
+    elif kind == "half_plane":
+        if np.linalg.norm(_num(obj.normal)) == 0:
+            raise FingerError(f"{where}.normal must be non-zero, got {_num(obj.normal).tolist()}")
+
+
+def _overlap(finger: Finger, obj, samples: int = 401):
+    """(beam, s, depth) of the deepest overlap of an object with a main beam's band at the
+    start, or None."""
+    geo = geometry(finger)
+    worst = None
+    for b, name, sec in ((FRONT, "front", finger.front), (BACK, "back", finger.back)):
+        length = float(geo.length[b])
+        s = np.linspace(0.0, length, samples)
+        p = np.asarray(arc_point(geo.base[b], geo.theta[b], geo.curvature[b], s))[:, ::2]
+        tip = sec.thickness if sec.tip_thickness is None else sec.tip_thickness
+        h = 0.5 * (float(sec.thickness) + (float(tip) - float(sec.thickness)) * s / length)
+        gap = np.asarray(obj.signed_distance(p)) - h
+        i = int(np.argmin(gap))
+        if gap[i] < 0 and (worst is None or -gap[i] > worst[2]):
+            worst = (name, float(s[i]), float(-gap[i]))
+    return worst

@@ -18,7 +18,7 @@ import numpy as np
 from ._contact import default_stiffness, penalty, smoothing
 from ._finger import BACK, FRONT, Finger, FingerError
 from ._rod import Integrator
-from ._solution import RESULTS, BeamSolution, Solution
+from ._solution import RESULTS, Solution
 from ._solve import SolverOptions, _direct_core, prepare
 from ._types import as_float
 
@@ -38,7 +38,8 @@ class ContactResult(eqx.Module):
     crossbeam_force: mean force the crossbeams apply to the front beam (x, y, z) (N): the
         paper's Fig. 4 metric.
     actuator_force: force along the closing direction the actuator applies to the
-        finger's adaptor (N): the base reactions projected on the closing direction.
+        finger's adaptor (N): everything the adaptor applies to the finger (base reactions
+        and the support) projected on the closing direction.
     """
 
     force: jax.Array
@@ -58,13 +59,19 @@ def _half_thickness(finger: Finger, beam: int, s, length):
     return 0.5 * (sec.thickness + (tip - sec.thickness) * s / length)
 
 
-def _trapezoid(y, s):
-    return jnp.sum(0.5 * (y[1:] + y[:-1]) * (s[1:] - s[:-1])[..., None], axis=0)
+def _blocks(x, steps):
+    return x.reshape((-1, steps + 2) + x.shape[1:])
 
 
 @eqx.filter_jit
 def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
-    """Contact outputs of a solved finger (objects, support, crossbeams, reactions)."""
+    """Contact outputs of a solved finger (objects, support, crossbeams, reactions).
+
+    Totals are exact for the discrete model: on every segment the contact force is the
+    change of the internal force n that the distributed loads do not explain (n' = -f).
+    Sampled pressures at the solution points split it between objects and support and
+    give the normal force.
+    """
     from ._geometry import geometry
 
     geo = geometry(finger)
@@ -73,43 +80,53 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
     delta = smoothing(finger)
     clamp = (finger.adaptor.front_clamp_length, finger.adaptor.back_clamp_length)
     force = jnp.zeros(3)
+    support = jnp.zeros(3)
     normal = jnp.zeros(())
     length = jnp.zeros(())
     pen = jnp.zeros(())
     pressures = []
+    w = jnp.insert(as_float(direction), 1, 0.0)
     for beam, bs in ((FRONT, sol.front), (BACK, sol.back)):
         p = bs.position[:, ::2]
         h = _half_thickness(finger, beam, bs.s, geo.length[beam])
-        free = jax.nn.sigmoid((bs.s - clamp[beam]) / 1e-6)  # no contact inside a clamp
-        total = jnp.zeros_like(bs.s)
+        free = bs.s > clamp[beam]  # no contact inside a clamp
+        q_obj = jnp.zeros_like(bs.s)  # normal pressure from objects
+        f_obj = jnp.zeros((bs.s.shape[0], 2))  # force per length from objects
         for obj in finger.objects:
             q = obj.params()
             d, grad = jax.vmap(jax.value_and_grad(lambda x, q=q, obj=obj: obj.distance(q, x)))(p)
             gap = d - h
-            qn = free * penalty(gap, k, delta)
+            qn = jnp.where(free, penalty(gap, k, delta), 0.0)
             t = bs.frame[:, ::2, 2]
             slide = c.friction * jnp.tanh((t @ c.slip_direction) / c.friction_regularisation)
-            f = qn[:, None] * (grad + slide[:, None] * t)
-            force = force + jnp.insert(_trapezoid(f, bs.s), 1, 0.0)
-            total = total + qn
-            pen = jnp.maximum(pen, jnp.max(jnp.where(free > 0.5, -gap, 0.0)))
-            inside = (gap < 0.0) & (free > 0.5)
-            length = length + jnp.sum(
-                jnp.where(inside[1:] & inside[:-1], bs.s[1:] - bs.s[:-1], 0.0)
-            )
-        normal = normal + _trapezoid(total[:, None], bs.s)[0]
-        pressures.append(total)
-    support = jnp.zeros(3)
-    if finger.adaptor.support_length is not None:
-        bs = sol.back
-        th = geo.theta[BACK]
-        nrm = -jnp.stack([jnp.cos(th), -jnp.sin(th)])
-        gap = (bs.position[:, ::2] - geo.base[BACK, ::2]) @ nrm
-        inside = jax.nn.sigmoid((finger.adaptor.support_length - bs.s) / 1e-6)
-        qs = inside * jax.nn.sigmoid((bs.s - clamp[BACK]) / 1e-6) * penalty(gap, k, delta)
-        support = jnp.insert(_trapezoid(qs[:, None] * nrm[None], bs.s), 1, 0.0)
-    reactions = sol.reactions_front.force + sol.reactions_back.force
-    w = jnp.insert(as_float(direction), 1, 0.0)
+            f_obj = f_obj + qn[:, None] * (grad + slide[:, None] * t)
+            q_obj = q_obj + qn
+            pen = jnp.maximum(pen, jnp.max(jnp.where(free, -gap, 0.0)))
+            length = length + _length_inside(jnp.where(free, gap, 1.0), bs.s)
+        f_sup = jnp.zeros_like(f_obj)
+        if beam == BACK and finger.adaptor.support_length is not None:
+            th = geo.theta[BACK]
+            nrm = -jnp.stack([jnp.cos(th), -jnp.sin(th)])
+            gap = (p - geo.base[BACK, ::2]) @ nrm
+            on = free & (bs.s < finger.adaptor.support_length)
+            f_sup = jnp.where(on, penalty(gap, k, delta), 0.0)[:, None] * nrm[None]
+        # Per segment: sampled integrals, and the exact total from the jump of n.
+        s_b = _blocks(bs.s, sol.steps)
+        n_b = _blocks(bs.force[:, ::2], sol.steps)
+        dist = _distributed(finger, beam, s_b[:, 0], s_b[:, -1])
+        exact = -(n_b[:, -1] - n_b[:, 0]) - dist
+        so, ss, qo = (_blocks_integral(x, s_b, sol.steps) for x in (f_obj, f_sup, q_obj[:, None]))
+        sampled = so + ss
+        size = jnp.sum(sampled * sampled, axis=1)
+        ok = size > 1e-24 * jnp.maximum(jnp.sum(exact * exact, axis=1), 1e-300)
+        scale = jnp.where(ok, jnp.sum(exact * sampled, axis=1) / jnp.where(ok, size, 1.0), 1.0)
+        obj_part = jnp.where(ok[:, None], scale[:, None] * so, exact - ss)
+        force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
+        support = support + jnp.insert(jnp.sum(exact - obj_part, axis=0), 1, 0.0)
+        q_exact = jnp.where(ok, scale * qo[:, 0], jnp.linalg.norm(obj_part, axis=1))
+        normal = normal + jnp.sum(q_exact)
+        pressures.append(q_obj)
+    reactions = sol.reactions_front.force + sol.reactions_back.force + support
     cb = sol.crossbeam_wrenches.front_force
     return ContactResult(
         force=force,
@@ -122,6 +139,37 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         crossbeam_force=jnp.mean(cb, axis=0) if cb.shape[0] else jnp.zeros(3),
         actuator_force=jnp.dot(reactions, w),
     )
+
+
+def _length_inside(gap, s):
+    """Arc length where gap < 0, with zero crossings interpolated linearly."""
+    g0, g1 = gap[:-1], gap[1:]
+    ds = s[1:] - s[:-1]
+    both = (g0 < 0) & (g1 < 0)
+    one = (g0 < 0) != (g1 < 0)
+    span = jnp.where(one, jnp.abs(g0 - g1), 1.0)
+    frac = jnp.where(one, -jnp.minimum(g0, g1) / span, 0.0)
+    return jnp.sum(jnp.where(both, ds, frac * ds))
+
+
+def _blocks_integral(x, s_b, steps):
+    """Trapezoid integral of x over every segment block: (segments, columns)."""
+    x_b = _blocks(x, steps)
+    ds = (s_b[:, 1:] - s_b[:, :-1])[..., None]
+    return jnp.sum(0.5 * (x_b[:, 1:] + x_b[:, :-1]) * ds, axis=1)
+
+
+def _distributed(finger: Finger, beam: int, s0, s1):
+    """Resultant (x, z) of the distributed loads on each segment [s0, s1] of a beam."""
+    from ._finger import DistributedLoad
+
+    total = jnp.zeros((s0.shape[0], 2))
+    for ld in finger.loads:
+        if isinstance(ld, DistributedLoad) and ld.beam == beam:
+            a, b = ld.s_range[0], ld.s_range[1]
+            overlap = jnp.clip(jnp.minimum(s1, b) - jnp.maximum(s0, a), 0.0, None)
+            total = total + overlap[:, None] * ld.force_per_length[::2][None]
+    return total
 
 
 class GraspSolution(eqx.Module):
@@ -206,9 +254,38 @@ class _Stepper:
         return t, sol, True
 
 
-def _check_objects(finger: Finger):
+def _check_objects(finger: Finger, w):
+    """Objects must lie ahead of the finger's front side and within its span."""
     if not finger.objects:
         raise FingerError("grasp needs at least one object (Finger.objects is empty)")
+    from ._finger import validate_finger
+    from ._geometry import arc_point, geometry
+
+    validate_finger(finger)
+    geo = geometry(finger)
+    pts = []
+    for b in (FRONT, BACK):
+        s = np.linspace(0.0, float(geo.length[b]), 201)
+        pts.append(np.asarray(arc_point(geo.base[b], geo.theta[b], geo.curvature[b], s))[:, ::2])
+    pts = np.concatenate(pts)
+    across = np.array([-w[1], w[0]])
+    lo, hi = np.min(pts @ across), np.max(pts @ across)
+    for i, obj in enumerate(finger.objects):
+        if obj.kind == "half_plane":
+            continue
+        out = obj.outline(400)
+        a, b = np.min(out @ across), np.max(out @ across)
+        if b < lo or a > hi:
+            raise FingerError(
+                f"objects[{i}] ({obj.kind}) is outside the reach of the finger: it spans "
+                f"[{a:.4g}, {b:.4g}] mm across the closing direction, the finger [{lo:.4g}, "
+                f"{hi:.4g}] mm"
+            )
+        if np.max(out @ w) < np.min(pts @ w):
+            raise FingerError(
+                f"objects[{i}] ({obj.kind}) lies behind the finger: closing along "
+                f"{w.tolist()} moves the finger away from it"
+            )
 
 
 def grasp(
@@ -231,10 +308,10 @@ def grasp(
     stiffen: when the largest penetration exceeds `Contact.max_penetration` of the front
         beam's thickness, raise the penalty stiffness and solve again (warm started).
     """
-    _check_objects(finger)
     if (closing is None) == (actuator_force is None):
         raise FingerError("grasp needs exactly one of closing= and actuator_force=")
     w = _unit(direction, "direction")
+    _check_objects(finger, w)
     if closing is not None:
         d = float(np.asarray(closing))
         if not np.isfinite(d) or d < 0:
@@ -261,14 +338,16 @@ def grasp(
     limit = float(finger.contact.max_penetration * finger.front.thickness)
     rounds = 0
     while ok and stiffen and float(res.max_penetration) > limit and rounds < 6:
-        # penetration = delta / 2 + q / k: scale k so that q / k fits in what is left
+        # penetration = delta / 2 + q / k: scale k so that q / k fits in what is left,
+        # stepping log k from the old to the new stiffness (warm started).
         onset = float(0.5 * smoothing(finger))
         excess = (float(res.max_penetration) - onset) / max(limit - onset, 1e-12)
-        k *= 1.5 * max(excess, 1.0)
-        finger = _with_stiffness(finger, k)
-        sol2, ok = stepper.solve(at(t), sol.unknowns)
+        k_new = k * 1.3 * max(excess, 1.0)
+        stiffer = lambda u, k0=k, k1=k_new: _with_stiffness(at(t), k0 * (k1 / k0) ** u)
+        _, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
         if ok:
-            sol = sol2
+            k = k_new
+            finger = _with_stiffness(finger, k)
             res = contact_result(at(t), sol, w)
         rounds += 1
     if not ok:

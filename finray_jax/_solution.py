@@ -32,7 +32,9 @@ class BeamSolution(eqx.Module):
 
     position (N, 3), frame (N, 3, 3) with columns d1 d2 d3, force n (N, 3) and moment m
     (N, 3): the internal wrench the material at s+ exerts on s- (world frame; m about p(s)).
-    Segment boundaries appear twice (before and after the junction's jump).
+    Segment boundaries appear twice (before and after the junction's jump): the arrays are
+    blocks of steps + 2 points per segment (its start, then the steps + 1 points of its
+    flexible part).
     """
 
     s: jax.Array
@@ -86,6 +88,7 @@ class Solution(eqx.Module):
     crossbeam_wrenches: CrossbeamWrenches
     unknowns: jax.Array  # scaled shooting unknowns, usable as a warm start
     mode: str = eqx.field(static=True)
+    steps: int = eqx.field(static=True, default=0)  # integration steps per segment
 
     @property
     def status(self) -> str:

@@ -448,6 +448,7 @@ def _outputs(problem: Problem, y, lam, code, iterations) -> Solution:
         crossbeam_wrenches=wrenches,
         unknowns=y,
         mode=topo.mode,
+        steps=problem.integrator.steps,
     )
 
 

@@ -1,4 +1,4 @@
-"""The `finray` command line: solve, limit, validate and demo. See docs/cli.md.
+"""The `finray` command line: solve, limit, validate, demo and sweep. See docs/cli.md.
 
 Exit codes: 0 converged (or limit found, or file valid), 1 user error (bad or missing
 file, bad option), 2 the load lies beyond the finger's limit load, 3 the solve failed.
@@ -175,6 +175,17 @@ def _parser() -> argparse.ArgumentParser:
         default=".",
         help="output directory (default: the current directory)",
     )
+
+    sw = sub.add_parser(
+        "sweep",
+        help="solve a sweep of designs (sweep file: docs/sweep-format.md)",
+        description="Sample design values of a finger, solve every design in batches, and "
+        "write DIR/results.csv (one row per design, chunk by chunk), DIR/manifest.json and "
+        "DIR/sweep.png. Re-running the same sweep into DIR continues where it stopped.",
+    )
+    sw.add_argument("sweep", metavar="SWEEP.toml")
+    sw.add_argument("--out", metavar="DIR", required=True, help="output directory")
+    sw.add_argument("--max-chunks", type=int, default=None, metavar="N", help="stop after N chunks")
     return p
 
 
@@ -376,7 +387,41 @@ def _cmd_demo(args) -> int:
     return STATUS_EXIT[sol.status]
 
 
-COMMANDS = {"solve": _cmd_solve, "limit": _cmd_limit, "validate": _cmd_validate, "demo": _cmd_demo}
+def _cmd_sweep(args) -> int:
+    from . import sweep as fsweep
+
+    if args.max_chunks is not None and args.max_chunks < 1:
+        raise UserError(f"--max-chunks must be a positive integer, got {args.max_chunks}")
+    sw = fsweep.load_sweep(args.sweep)
+    print(
+        f"sweep {args.sweep}: {sw.size} designs ({sw.sampling}) of {sw.finger_path}, "
+        f"values {', '.join(sw.names)}; outputs {', '.join(sw.outputs)}; mode {sw.mode}"
+    )
+    try:
+        run = fsweep.run_sweep(sw, args.out, max_chunks=args.max_chunks, progress=sys.stderr)
+    except KeyboardInterrupt:
+        print(
+            f"finray: interrupted; finished chunks are in {args.out}: run the same command "
+            "to continue",
+            file=sys.stderr,
+        )
+        return 130
+    counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))
+    print(f"wrote {run.csv} ({run.done} of {run.total} designs: {counts or 'none yet'})")
+    if run.figure:
+        print(f"wrote {run.figure}")
+    else:
+        print("not finished: run the same command to continue")
+    return EXIT_OK
+
+
+COMMANDS = {
+    "solve": _cmd_solve,
+    "limit": _cmd_limit,
+    "validate": _cmd_validate,
+    "demo": _cmd_demo,
+    "sweep": _cmd_sweep,
+}
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,322 @@
+"""Batches of designs: one base finger, many values of named design values, solved by
+`jax.vmap` in fixed-size chunks (sharded over the devices when there are several).
+
+Every design of a batch shares the base finger's topology (number of crossbeams, order of
+attachments and load points, boundary kinds), so new values never recompile. A design
+that breaks that topology or is invalid (NaN, non-positive thickness, attachment outside
+its beam, ...) is flagged "invalid" and not solved (the base finger is solved in its slot
+and discarded); a design whose solve fails or lies beyond the limit load is flagged by
+its own status. The solver's loops are bounded, so no member stalls the batch, and
+members never mix: the others come out as if solved alone.
+
+Like `solve_finger` on one finger, each chunk is first solved by Newton at full load
+(vmapped, all members in lock step); only the designs that this does not solve (large
+loads, folds) go on to arc-length continuation, in sub-batches of
+`continuation_chunk_size`, so one hard design does not make a whole chunk continue.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Iterator, Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from . import _solve
+from ._finger import Finger
+from ._rod import Integrator
+from ._solution import RESULTS
+from ._solve import SolverOptions, solve_finger, topology_of
+from .design import (
+    DesignError,
+    check_design_names,
+    check_output_names,
+    design_valid,
+    evaluate_outputs,
+    get_design,
+    set_design,
+)
+
+__all__ = ["BatchResult", "INVALID", "iter_batch", "solve_batch", "status_names"]
+
+#: Result code of a design that was not solved (invalid, or outside the base topology).
+INVALID = -1
+_AXIS = "design"
+
+
+class BatchResult(eqx.Module):
+    """Per-design results of a batch (host numpy arrays, B designs).
+
+    inputs, outputs: name -> (B,) (or (B, C) for a whole crossbeam array) values. Outputs
+        are NaN for invalid and failed designs; beyond the limit load they are those of
+        the equilibrium at the fold (see the "load_factor" output).
+    result: RESULTS codes (int), INVALID (-1) for designs that were not solved.
+    iterations: Newton iterations; max_residual: largest scaled residual (NaN if invalid).
+    """
+
+    inputs: dict[str, np.ndarray]
+    outputs: dict[str, np.ndarray]
+    result: np.ndarray
+    iterations: np.ndarray
+    max_residual: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return int(self.result.shape[0])
+
+    @property
+    def status(self) -> np.ndarray:
+        """'converged' | 'beyond_limit_load' | 'failed' | 'invalid' per design."""
+        return status_names(self.result)
+
+    def message(self, i: int) -> str:
+        """What the result of design i means (and what to do)."""
+        code = int(self.result[i])
+        if code == INVALID:
+            return (
+                "invalid design: a value is not finite or out of range (thickness, depth or E "
+                "not positive, attachment outside its beam), or it changes the base finger's "
+                "topology (order of attachments and load points along a beam)"
+            )
+        return RESULTS._index_to_message[code] or "converged"
+
+
+def status_names(result) -> np.ndarray:
+    """Status names of RESULTS codes (INVALID -> 'invalid')."""
+    code = np.asarray(result)
+    names = np.full(code.shape, "failed", dtype=object)
+    names[code == int(RESULTS.successful._value)] = "converged"
+    names[code == int(RESULTS.beyond_limit_load._value)] = "beyond_limit_load"
+    names[code == INVALID] = "invalid"
+    return names
+
+
+# --------------------------------------------------------------------------------------
+# The jitted core
+# --------------------------------------------------------------------------------------
+
+
+def _prepare(topo, base: Finger, values):
+    finger = set_design(base, values)
+    ok = design_valid(finger, topo)
+    # An invalid design is replaced by the base finger (solved, then discarded), so it
+    # cannot feed NaN or a broken geometry to the solver.
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), finger, base), ok
+
+
+def _direct(topo, integrator, options, outputs, base: Finger, values):
+    """Newton at full load from the undeformed state (as `solve_finger` tries first)."""
+    finger, valid = _prepare(topo, base, values)
+    sol, ok = _solve._direct_core(topo, integrator, options, finger, None)
+    return _pack(sol, finger, outputs, valid), ok & valid
+
+
+def _full(topo, integrator, options, outputs, base: Finger, values):
+    """Arc-length continuation (and the fold), for designs whose direct solve failed."""
+    finger, valid = _prepare(topo, base, values)
+    sol = solve_finger(finger, integrator=integrator, options=options, topology=topo)
+    return _pack(sol, finger, outputs, valid)
+
+
+def _pack(sol, finger, outputs, valid):
+    code = jnp.where(valid, sol.result._value, INVALID)
+    failed = (code != RESULTS.successful._value) & (code != RESULTS.beyond_limit_load._value)
+    outs = evaluate_outputs(sol, finger, outputs)
+    outs = {k: jnp.where(failed, jnp.nan, v) for k, v in outs.items()}
+    its = jnp.where(valid, sol.iterations, 0)
+    return outs, code, its, jnp.where(valid, sol.max_residual, jnp.nan)
+
+
+_traces = 0  # how often a chunk program was traced (a test checks values never retrace)
+
+
+@eqx.filter_jit
+def _chunk_core(stage, topo, integrator, options, outputs, mesh, base: Finger, values):
+    global _traces
+    _traces += 1
+    one = functools.partial(stage, topo, integrator, options, outputs)
+    if mesh is None:
+        return jax.vmap(one, in_axes=(None, 0))(base, values)
+    if mesh.devices.flat[0].platform == "cpu":
+        # Several CPU devices (e.g. --xla_force_host_platform_device_count): jaxlib's
+        # batched LAPACK LU waits on the intra-op thread pool the other devices occupy,
+        # which deadlocked on 2 cores; each device maps over its rows instead.
+        fn = lambda b, v: lax.map(lambda x: one(b, x), v)
+    else:
+        fn = jax.vmap(one, in_axes=(None, 0))
+    # Each device runs its own loops on its rows (no lock step across devices).
+    # check_vma=False: the solver's loop carries start replicated and become per-row.
+    spec = PartitionSpec(_AXIS)
+    return jax.shard_map(
+        fn, mesh=mesh, in_specs=(PartitionSpec(), spec), out_specs=spec, check_vma=False
+    )(base, values)
+
+
+# --------------------------------------------------------------------------------------
+# Public entry points
+# --------------------------------------------------------------------------------------
+
+
+def _check_values(base: Finger, values: Mapping) -> tuple[dict[str, np.ndarray], int]:
+    if not isinstance(values, Mapping) or not values:
+        raise DesignError("values must be a non-empty dict: design-value name -> (B,) array")
+    check_design_names(base, values)
+    shapes = {k: np.shape(v) for k, v in get_design(base, list(values)).items()}
+    arrays, size = {}, None
+    for name, v in values.items():
+        a = np.asarray(v, dtype=np.float64)
+        if a.ndim != 1 + len(shapes[name]) or a.shape[1:] != shapes[name]:
+            raise DesignError(
+                f"values[{name!r}] must have shape (B,) + {shapes[name]} (one row per design), "
+                f"got {a.shape}"
+            )
+        if size is not None and a.shape[0] != size:
+            raise DesignError(
+                f"values[{name!r}] has {a.shape[0]} designs, the others {size}: all value arrays "
+                "need the same length"
+            )
+        arrays[name], size = a, a.shape[0]
+    return arrays, size
+
+
+def _mesh(devices) -> Mesh | None:
+    devices = list(jax.devices() if devices is None else devices)
+    return Mesh(np.asarray(devices), (_AXIS,)) if len(devices) > 1 else None
+
+
+def _pad(arrays, rows: slice | np.ndarray, size: int, fill) -> dict[str, np.ndarray]:
+    out = {}
+    for name, v in arrays.items():
+        part = v[rows]
+        pad = np.broadcast_to(fill[name], (size - part.shape[0],) + v.shape[1:])
+        out[name] = np.concatenate([part, pad])
+    return out
+
+
+def iter_batch(
+    base_finger: Finger,
+    values: Mapping[str, np.ndarray],
+    outputs: Sequence[str] = ("tip.dx",),
+    *,
+    mode: str = "planar",
+    chunk_size: int = 256,
+    continuation_chunk_size: int = 8,
+    integrator: Integrator = Integrator(),
+    options: SolverOptions = SolverOptions(),
+    topology=None,
+    start: int = 0,
+    devices=None,
+) -> Iterator[tuple[int, BatchResult]]:
+    """Solve designs start, start + 1, ... chunk by chunk; yield (first index, BatchResult).
+
+    See `solve_batch`. Every chunk is padded to the same size, so all chunks share one
+    compiled program.
+    """
+    arrays, size = _check_values(base_finger, values)
+    outputs = tuple(outputs)
+    check_output_names(outputs)
+    for name, n in (
+        ("chunk_size", chunk_size),
+        ("continuation_chunk_size", continuation_chunk_size),
+    ):
+        if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+            raise ValueError(f"{name} must be a positive integer, got {n!r}")
+    topo = topology_of(base_finger, mode) if topology is None else topology
+    mesh = _mesh(devices)
+    n_dev = 1 if mesh is None else mesh.size
+    sharding = None if mesh is None else NamedSharding(mesh, PartitionSpec(_AXIS))
+    fill = {k: np.asarray(v) for k, v in get_design(base_finger, list(arrays)).items()}
+    continuation = dataclasses.replace(options, direct_first=False)
+
+    def run(stage, opts, rows, n_rows):
+        padded = -(-n_rows // n_dev) * n_dev
+        chunk = jax.device_put(_pad(arrays, rows, padded, fill), sharding)
+        out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, base_finger, chunk)
+        return jax.tree_util.tree_map(np.asarray, out)
+
+    for a in range(start, size, chunk_size):
+        z = min(a + chunk_size, size)
+        n = z - a
+        if options.direct_first:
+            (outs, code, its, res), ok = run(_direct, options, slice(a, z), chunk_size)
+            redo = np.flatnonzero(~ok[:n] & (code[:n] != INVALID))
+        else:
+            outs, code, its, res = run(_full, options, slice(a, z), chunk_size)
+            redo = np.zeros(0, dtype=np.int64)
+        outs = {k: v[:n].copy() for k, v in outs.items()}
+        code, its, res = code[:n].astype(np.int64), its[:n].astype(np.int64), res[:n].copy()
+        # Designs whose direct Newton failed: continuation, a few at a time (the batch
+        # runs in lock step, so the slowest member sets the pace of its sub-batch).
+        m = continuation_chunk_size
+        for b in range(0, redo.size, m):
+            sel = redo[b : b + m]
+            o2, c2, i2, r2 = run(_full, continuation, a + sel, m)
+            k = sel.size
+            for name in outs:
+                outs[name][sel] = o2[name][:k]
+            code[sel], its[sel], res[sel] = c2[:k], its[sel] + i2[:k], r2[:k]
+        yield (
+            a,
+            BatchResult(
+                inputs={k: v[a:z] for k, v in arrays.items()},
+                outputs=outs,
+                result=code,
+                iterations=its,
+                max_residual=res,
+            ),
+        )
+
+
+def solve_batch(
+    base_finger: Finger,
+    values: Mapping[str, np.ndarray],
+    outputs: Sequence[str] = ("tip.dx",),
+    *,
+    mode: str = "planar",
+    chunk_size: int = 256,
+    continuation_chunk_size: int = 8,
+    integrator: Integrator = Integrator(),
+    options: SolverOptions = SolverOptions(),
+    topology=None,
+    devices=None,
+) -> BatchResult:
+    """Solve many designs of one finger: `values` maps design-value names (see
+    `finray_jax.design`) to arrays with one row per design; `outputs` names the scalar
+    outputs to return.
+
+    Designs are solved `chunk_size` at a time by `jax.vmap` (bounded memory; one compiled
+    program for every chunk and every set of values), sharded over `devices` (default:
+    all of `jax.devices()`) when there are several; designs whose direct Newton solve
+    fails are continued `continuation_chunk_size` at a time (a second program, compiled
+    on first need). mode: "planar" or "spatial" ("auto" resolves on the base finger).
+    Returns a BatchResult with per-design status.
+    """
+    parts = [
+        r
+        for _, r in iter_batch(
+            base_finger,
+            values,
+            outputs,
+            mode=mode,
+            chunk_size=chunk_size,
+            continuation_chunk_size=continuation_chunk_size,
+            integrator=integrator,
+            options=options,
+            topology=topology,
+            devices=devices,
+        )
+    ]
+    cat = lambda xs: np.concatenate(xs) if xs else np.zeros((0,))
+    return BatchResult(
+        inputs={k: cat([p.inputs[k] for p in parts]) for k in values},
+        outputs={k: cat([p.outputs[k] for p in parts]) for k in outputs},
+        result=cat([p.result for p in parts]).astype(np.int64),
+        iterations=cat([p.iterations for p in parts]).astype(np.int64),
+        max_residual=cat([p.max_residual for p in parts]),
+    )

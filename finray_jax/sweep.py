@@ -1,0 +1,510 @@
+"""Design sweeps from a sweep file (TOML): sample named design values of a base finger,
+solve every design with `solve_batch`, and write one CSV row per design, chunk by chunk.
+
+Format reference: docs/sweep-format.md. The CSV is written append-only with a flush and
+an fsync after every chunk, next to a manifest holding the sweep's hash: running the same
+sweep into the same directory again continues after the last complete row (an interrupt
+loses at most the chunk being solved); a different sweep there is refused.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import time
+import tomllib
+from collections.abc import Callable
+
+import numpy as np
+
+from . import io as fio
+from ._finger import Finger
+from ._solve import resolve_mode
+from .batch import iter_batch
+from .design import OUTPUTS, DesignError, check_design_names
+
+__all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
+
+SAMPLINGS = ("grid", "random")
+RESULTS_CSV, MANIFEST, FIGURE = "results.csv", "manifest.json", "sweep.png"
+STATUS_COLUMNS = ("status", "iterations", "max_residual")
+_FORMAT = 1  # bump when the meaning of a sweep file or its CSV changes
+
+
+class SweepError(fio.FingerFileError):
+    """An invalid sweep file, or an output directory that holds another sweep."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Axis:
+    """One swept design value: uniform in [lo, hi]; `points` grid points (grid only)."""
+
+    name: str
+    lo: float
+    hi: float
+    points: int | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A parsed sweep file. `designs()` gives the design values, one row per design."""
+
+    source: str
+    finger_path: str
+    finger: Finger
+    settings: fio.SolveSettings
+    axes: tuple[Axis, ...]
+    sampling: str
+    n_random: int
+    seed: int
+    outputs: tuple[str, ...]
+    mode: str
+    chunk_size: int
+    digest: str
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.axes)
+
+    @property
+    def size(self) -> int:
+        if self.sampling == "grid":
+            return math.prod(a.points for a in self.axes)
+        return self.n_random
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return ("index", *self.names, *self.outputs, *STATUS_COLUMNS)
+
+    def designs(self) -> dict[str, np.ndarray]:
+        """Grid: every combination, the last name varying fastest. Random: uniform in
+        [lo, hi], drawn by numpy's default_rng(seed), one row per design."""
+        if self.sampling == "grid":
+            grids = [np.linspace(a.lo, a.hi, a.points) for a in self.axes]
+            cols = np.meshgrid(*grids, indexing="ij")
+            return {a.name: c.reshape(-1) for a, c in zip(self.axes, cols)}
+        rng = np.random.default_rng(self.seed)
+        lo = np.asarray([a.lo for a in self.axes])
+        hi = np.asarray([a.hi for a in self.axes])
+        u = lo + (hi - lo) * rng.random((self.n_random, len(self.axes)))
+        return {a.name: u[:, j] for j, a in enumerate(self.axes)}
+
+
+# --------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------
+
+_TOP = ("finger", "outputs", "mode", "chunk_size", "sampling", "design")
+_HELP = {
+    "finger": " (path of the base finger file, relative to this sweep file)",
+    "outputs": ' (names of the outputs to record, e.g. ["tip.dx", "max_strain"])',
+    "sampling": ' (table [sampling] with kind = "grid" or "random")',
+    "design": " (one [[design]] table per swept design value, with name and range)",
+    "kind": ' ("grid" or "random")',
+    "name": " (a design value, e.g. adaptor.back_clamp_length or crossbeams.front_s[2])",
+    "range": " ([lo, hi])",
+    "points": " (number of grid points, >= 2)",
+    "n": " (number of random designs)",
+}
+
+
+def _required(r, table, path, keys):
+    for key in keys:
+        if key not in table:
+            full = f"{path}.{key}" if path else key
+            raise r.error(full, "missing required key" + _HELP.get(key, ""))
+
+
+def loads_sweep(text: str, *, source: str = "<string>", base_dir: str = ".") -> Sweep:
+    """Read a sweep from TOML text; the finger path is relative to `base_dir`."""
+    r = fio._Reader(source)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SweepError(f"{source}: not valid TOML: {e}") from None
+    try:
+        return _parse(doc, r, source, base_dir)
+    except SweepError:
+        raise
+    except fio.FingerFileError as e:
+        raise SweepError(str(e)) from None
+
+
+def load_sweep(path) -> Sweep:
+    """Read a sweep file. Raises SweepError (a FingerFileError) naming the key and value."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as fh:
+            text = fh.read().decode("utf-8")
+    except OSError as e:
+        raise SweepError(f"{path}: cannot read the sweep file: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise SweepError(f"{path}: not UTF-8 text: {e}") from None
+    return loads_sweep(text, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def _parse(doc, r, source, base_dir) -> Sweep:
+    r.table(doc, "", _TOP)
+    _required(r, doc, "", ("finger", "outputs", "sampling", "design"))
+    rel = r.string(doc["finger"], "finger")
+    finger_path = os.path.normpath(os.path.join(base_dir, rel))
+    if not os.path.isfile(finger_path):
+        raise r.error("finger", f"no such finger file: {finger_path}", rel)
+    finger, settings = fio.load_finger(finger_path)
+    with open(finger_path, "rb") as fh:
+        finger_hash = hashlib.sha256(fh.read()).hexdigest()
+
+    mode = r.string(doc.get("mode", settings.mode), "mode", fio.MODES)
+    mode = resolve_mode(finger, mode)
+    chunk_size = r.integer(doc.get("chunk_size", 64), "chunk_size", minimum=1)
+
+    outputs = doc["outputs"]
+    if not isinstance(outputs, list) or not outputs:
+        raise r.error("outputs", "expected a non-empty array of output names", outputs)
+    for i, name in enumerate(outputs):
+        r.string(name, f"outputs[{i}]")
+        if name not in OUTPUTS:
+            raise r.error(
+                f"outputs[{i}]", f"unknown output; valid outputs: {', '.join(OUTPUTS)}", name
+            )
+        if outputs.index(name) != i:
+            raise r.error(f"outputs[{i}]", "listed twice", name)
+
+    smp = r.table(doc["sampling"], "sampling", ("kind", "n", "seed"))
+    _required(r, smp, "sampling", ("kind",))
+    kind = r.string(smp["kind"], "sampling.kind", SAMPLINGS)
+    n_random, seed = 0, 0
+    if kind == "random":
+        _required(r, smp, "sampling", ("n",))
+        n_random = r.integer(smp["n"], "sampling.n", minimum=1)
+        seed = r.integer(smp.get("seed", 0), "sampling.seed", minimum=0)
+    else:
+        for key in ("n", "seed"):
+            if key in smp:
+                raise r.error(f"sampling.{key}", 'is for kind = "random"', smp[key])
+
+    axes = []
+    for i, tbl in enumerate(r.array_of_tables(doc["design"], "design")):
+        p = f"design[{i}]"
+        r.table(tbl, p, ("name", "range", "points"))
+        _required(r, tbl, p, ("name", "range") + (("points",) if kind == "grid" else ()))
+        name = r.string(tbl["name"], f"{p}.name")
+        try:
+            check_design_names(finger, [name], scalar=True)
+        except DesignError as e:
+            raise r.error(f"{p}.name", str(e), name) from None
+        if name in (a.name for a in axes):
+            raise r.error(f"{p}.name", "listed twice", name)
+        lo, hi = r.vector(tbl["range"], f"{p}.range", 2, "[lo, hi]")
+        if not lo < hi:
+            raise r.error(f"{p}.range", "needs lo < hi", tbl["range"])
+        points = None
+        if kind == "grid":
+            points = r.integer(tbl["points"], f"{p}.points", minimum=2)
+        elif "points" in tbl:
+            raise r.error(
+                f"{p}.points",
+                'is for kind = "grid" (random sampling takes sampling.n)',
+                tbl["points"],
+            )
+        axes.append(Axis(name, lo, hi, points))
+    if not axes:
+        raise r.error("design", "needs at least one [[design]] table" + _HELP["design"])
+
+    # chunk_size only groups the rows: changing it continues the same sweep.
+    key = {
+        "format": _FORMAT,
+        "finger_sha256": finger_hash,
+        "mode": mode,
+        "sampling": kind,
+        "n": n_random,
+        "seed": seed,
+        "design": [[a.name, a.lo, a.hi, a.points] for a in axes],
+        "outputs": list(outputs),
+    }
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
+    sweep = Sweep(
+        source,
+        finger_path,
+        finger,
+        settings,
+        tuple(axes),
+        kind,
+        n_random,
+        seed,
+        tuple(outputs),
+        mode,
+        chunk_size,
+        digest,
+    )
+    if sweep.size > 10**8:
+        raise r.error("design", f"{sweep.size} designs is too many (at most 10^8)")
+    return sweep
+
+
+# --------------------------------------------------------------------------------------
+# The results directory
+# --------------------------------------------------------------------------------------
+
+
+def _fsync_write(path, text: str) -> None:
+    tmp = path + ".tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _manifest(sweep: Sweep, finished: bool) -> dict:
+    from . import __version__
+
+    return {
+        "sweep_hash": sweep.digest,
+        "sweep_file": os.path.abspath(sweep.source),
+        "finger_file": sweep.finger_path,
+        "n_designs": sweep.size,
+        "columns": list(sweep.columns),
+        "finished": finished,
+        "finray_jax_version": __version__,
+    }
+
+
+def _check_manifest(sweep: Sweep, out_dir: str) -> None:
+    path = os.path.join(out_dir, MANIFEST)
+    if os.path.exists(path):
+        try:
+            with open(path, encoding="utf-8") as fh:
+                old = json.load(fh)
+        except (OSError, ValueError) as e:
+            raise SweepError(
+                f"{path}: unreadable sweep manifest ({e}); remove {out_dir} or use another --out"
+            ) from None
+        if old.get("sweep_hash") != sweep.digest:
+            raise SweepError(
+                f"{out_dir} holds another sweep (from {old.get('sweep_file', '?')}, hash "
+                f"{str(old.get('sweep_hash'))[:12]}; this sweep's hash is {sweep.digest[:12]}): "
+                "use another --out directory, or delete that one to start again"
+            )
+    elif os.path.exists(os.path.join(out_dir, RESULTS_CSV)):
+        raise SweepError(f"{out_dir} holds a {RESULTS_CSV} without a {MANIFEST}: use another --out")
+
+
+def _fmt(x) -> str:
+    return repr(float(x)) if math.isfinite(float(x)) else "nan"
+
+
+def _resume(sweep: Sweep, csv_path: str, designs) -> int:
+    """Number of complete rows already in the CSV (truncating a torn last line); checks
+    that they are the first designs of this sweep."""
+    header = ",".join(sweep.columns) + "\n"
+    if not os.path.exists(csv_path):
+        _fsync_write(csv_path, header)
+        return 0
+    with open(csv_path, "rb") as fh:
+        data = fh.read()
+    keep = data[: data.rfind(b"\n") + 1]  # only lines that ended
+    lines = keep.decode("utf-8").splitlines(keepends=True)
+    if not lines or lines[0] != header:
+        raise SweepError(f"{csv_path}: its header is not this sweep's columns; use another --out")
+    n_cols = len(sweep.columns)
+    done = 0
+    for line in lines[1:]:
+        fields = line.rstrip("\n").split(",")
+        if len(fields) != n_cols or fields[0] != str(done):
+            break
+        for j, name in enumerate(sweep.names):
+            if float(fields[1 + j]) != float(designs[name][done]):
+                raise SweepError(
+                    f"{csv_path}: row {done} has {name} = {fields[1 + j]}, but this sweep's "
+                    f"design {done} has {_fmt(designs[name][done])}; use another --out"
+                )
+        done += 1
+    size = len("".join(lines[: done + 1]).encode("utf-8"))
+    if size != len(data):
+        with open(csv_path, "r+b") as fh:
+            fh.truncate(size)
+            fh.flush()
+            os.fsync(fh.fileno())
+    return done
+
+
+def _rows(sweep: Sweep, first: int, res) -> str:
+    lines = []
+    status = res.status
+    for k in range(res.size):
+        cells = [str(first + k)]
+        cells += [_fmt(res.inputs[n][k]) for n in sweep.names]
+        cells += [_fmt(res.outputs[n][k]) for n in sweep.outputs]
+        cells += [status[k], str(int(res.iterations[k])), _fmt(res.max_residual[k])]
+        lines.append(",".join(cells) + "\n")
+    return "".join(lines)
+
+
+class _Progress:
+    def __init__(self, total: int, done: int, stream):
+        self.total, self.start_done, self.stream = total, done, stream
+        self.t0 = time.perf_counter()
+        self.tty = getattr(stream, "isatty", lambda: False)()
+        self.bad = 0
+
+    def update(self, done: int, bad: int) -> None:
+        self.bad += bad
+        if self.stream is None:
+            return
+        frac = done / max(self.total, 1)
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        rate = (done - self.start_done) / max(time.perf_counter() - self.t0, 1e-9)
+        eta = (self.total - done) / rate if rate > 0 else float("inf")
+        text = (
+            f"sweep [{bar}] {done}/{self.total} designs ({100 * frac:.0f} %), "
+            f"{rate:.3g} designs/s, eta {eta:.0f} s, {self.bad} not converged"
+        )
+        end = "\r" if self.tty and done < self.total else "\n"
+        self.stream.write(("\r" if self.tty else "") + text + end)
+        self.stream.flush()
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepRun:
+    """What `run_sweep` did: designs in the CSV (done of total), and the files written."""
+
+    done: int
+    total: int
+    csv: str
+    figure: str | None
+    counts: dict[str, int]  # rows per status
+
+    @property
+    def finished(self) -> bool:
+        return self.done == self.total
+
+
+def run_sweep(
+    sweep: Sweep,
+    out_dir,
+    *,
+    max_chunks: int | None = None,
+    progress=None,
+    plot: bool = True,
+    after_chunk: Callable[[int], None] | None = None,
+) -> SweepRun:
+    """Run (or continue) a sweep into `out_dir`: results.csv, manifest.json, sweep.png.
+
+    max_chunks: stop after this many chunks (re-run to continue). progress: a text stream
+    for the progress line, e.g. sys.stderr (None: quiet). after_chunk(rows_done) runs
+    after every chunk has been written (a hook for tests and callers). The figure is drawn
+    when all rows exist.
+    """
+    out_dir = os.fspath(out_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    _check_manifest(sweep, out_dir)
+    _fsync_write(
+        os.path.join(out_dir, MANIFEST), json.dumps(_manifest(sweep, False), indent=2) + "\n"
+    )
+    csv_path = os.path.join(out_dir, RESULTS_CSV)
+    designs = sweep.designs()
+    done = _resume(sweep, csv_path, designs)
+    bar = _Progress(sweep.size, done, progress)
+    if done < sweep.size:
+        batches = iter_batch(
+            sweep.finger,
+            designs,
+            sweep.outputs,
+            mode=sweep.mode,
+            chunk_size=sweep.chunk_size,
+            integrator=sweep.settings.integrator,
+            options=sweep.settings.options,
+            start=done,
+        )
+        with open(csv_path, "a", encoding="utf-8") as fh:
+            for chunks, (first, res) in enumerate(batches, start=1):
+                fh.write(_rows(sweep, first, res))
+                fh.flush()
+                os.fsync(fh.fileno())
+                done = first + res.size
+                bar.update(done, int(np.sum(res.status != "converged")))
+                if after_chunk is not None:
+                    after_chunk(done)
+                if max_chunks is not None and chunks >= max_chunks:
+                    break
+    figure = None
+    data = read_results(csv_path)
+    if done == sweep.size:
+        _fsync_write(
+            os.path.join(out_dir, MANIFEST), json.dumps(_manifest(sweep, True), indent=2) + "\n"
+        )
+        if plot:
+            figure = os.path.join(out_dir, FIGURE)
+            plot_sweep(sweep, data, figure)
+    names, counts = np.unique(data["status"].astype(str), return_counts=True)
+    return SweepRun(done, sweep.size, csv_path, figure, dict(zip(names.tolist(), counts.tolist())))
+
+
+def read_results(csv_path) -> dict[str, np.ndarray]:
+    """The results CSV as columns: floats, and strings for `status`."""
+    with open(csv_path, encoding="utf-8") as fh:
+        head = fh.readline().rstrip("\n").split(",")
+        rows = [line.rstrip("\n").split(",") for line in fh if line.endswith("\n")]
+    cols = list(zip(*rows)) if rows else [()] * len(head)
+    return {
+        name: np.asarray(col, dtype=object if name == "status" else np.float64)
+        for name, col in zip(head, cols)
+    }
+
+
+# --------------------------------------------------------------------------------------
+# Plots
+# --------------------------------------------------------------------------------------
+
+
+def plot_sweep(sweep: Sweep, data: dict[str, np.ndarray], path: str) -> None:
+    """Line plots for a 1-D sweep, heat maps for a 2-D grid, scatter plots otherwise.
+    Only converged designs are drawn (beyond-limit ones as orange crosses on line and
+    scatter plots)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names, outs = sweep.names, sweep.outputs
+    ok = data["status"] == "converged"
+    beyond = data["status"] == "beyond_limit_load"
+    heat = sweep.sampling == "grid" and len(names) == 2
+    cols = 1 if heat or len(names) == 1 else len(names)
+    fig, axs = plt.subplots(
+        len(outs), cols, figsize=(4.8 * cols, 3.2 * len(outs)), squeeze=False, layout="constrained"
+    )
+    for i, out in enumerate(outs):
+        y = data[out]
+        if heat:
+            a, b = sweep.axes
+            z = np.where(ok, y, np.nan).reshape(a.points, b.points)
+            ax = axs[i, 0]
+            mesh = ax.pcolormesh(
+                np.linspace(b.lo, b.hi, b.points),
+                np.linspace(a.lo, a.hi, a.points),
+                z,
+                shading="nearest",
+            )
+            fig.colorbar(mesh, ax=ax, label=out)
+            ax.set_xlabel(b.name)
+            ax.set_ylabel(a.name)
+            continue
+        for j, name in enumerate(names):
+            ax, x = axs[i, j], data[name]
+            if sweep.sampling == "grid" and len(names) == 1:
+                ax.plot(x[ok], y[ok], "-o", ms=3)
+            else:
+                ax.scatter(x[ok], y[ok], s=8)
+            if np.any(beyond):
+                ax.plot(x[beyond], y[beyond], "x", color="tab:orange", label="beyond limit load")
+                ax.legend(fontsize=7)
+            ax.set_xlabel(name)
+            ax.set_ylabel(out)
+    fig.suptitle(f"{os.path.basename(sweep.source)}: {sweep.size} designs ({sweep.sampling})")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

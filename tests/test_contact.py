@@ -1,0 +1,308 @@
+"""Contact: objects' signed distances, the penalty law, closed forms, equilibrium,
+symmetry, the unilateral support, bad input and the holding force."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import finray_jax as fr
+from finray_jax._contact import penalty
+from finray_jax._grasp import _Stepper
+
+from helpers import global_balance
+
+# ---------------------------------------------------------------------------------------
+# Objects and the penalty law
+# ---------------------------------------------------------------------------------------
+
+OBJECTS = [
+    fr.Circle((1.0, 2.0), 3.0),
+    fr.Ellipse((0.5, -1.0), (4.0, 1.5), 0.4),
+    fr.RoundedRectangle((2.0, 1.0), (3.0, 1.5), 0.5, -0.3),
+    fr.Polygon([[0.0, 0.0], [4.0, 0.0], [1.0, 3.0]], (1.0, 1.0), 0.25, 0.7),
+]
+
+
+def _polyline_distance(points, p):
+    a, b = points[:-1], points[1:]
+    e = b - a
+    t = np.clip(np.sum((p - a) * e, axis=1) / np.maximum(np.sum(e * e, axis=1), 1e-300), 0, 1)
+    return float(np.min(np.linalg.norm(a + t[:, None] * e - p, axis=1)))
+
+
+@pytest.mark.parametrize("obj", OBJECTS, ids=lambda o: o.kind)
+def test_distance_is_zero_on_the_outline_and_exact_outside(obj):
+    outline = obj.outline(400)
+    assert np.max(np.abs(np.asarray(obj.signed_distance(outline)))) < 1e-9
+    # Outside points: the distance equals the distance to a dense outline.
+    rng = np.random.default_rng(0)
+    dense = obj.outline(4000)
+    center = dense.mean(axis=0)
+    for _ in range(5):
+        direction = rng.normal(size=2)
+        p = center + 8.0 * direction / np.linalg.norm(direction)
+        d = float(obj.signed_distance(p))
+        assert d > 0
+        assert abs(d - _polyline_distance(dense, p)) < 1e-5
+    # Inside the centre the distance is negative; its gradient outside is a unit vector.
+    assert float(obj.signed_distance(center)) < 0
+    q = obj.params()
+    g = jax.grad(lambda x: obj.distance(q, x))(jnp.asarray(center + 8.0 * np.array([0.6, 0.8])))
+    assert abs(float(jnp.linalg.norm(g)) - 1.0) < 1e-9
+
+
+def test_half_plane_distance():
+    h = fr.HalfPlane((1.0, 0.0), (2.0, 0.0))
+    assert float(h.signed_distance(np.array([3.0, 5.0]))) == pytest.approx(2.0)
+    assert float(h.signed_distance(np.array([0.0, -5.0]))) == pytest.approx(-1.0)
+
+
+def test_penalty_is_zero_before_contact_and_continuously_differentiable():
+    k, delta = 100.0, 0.01
+    assert float(penalty(0.0, k, delta)) == 0.0
+    assert float(penalty(0.5, k, delta)) == 0.0
+    dq = jax.grad(penalty)
+    for x in (0.0, -delta):  # the joints of the ramp: value and slope continuous
+        for f in (penalty, dq):
+            assert abs(float(f(x + 1e-12, k, delta)) - float(f(x - 1e-12, k, delta))) < 1e-6
+    # linear beyond delta: q = k (x - delta / 2)
+    assert float(penalty(-0.1, k, delta)) == pytest.approx(k * (0.1 - delta / 2))
+
+
+# ---------------------------------------------------------------------------------------
+# Closed forms: the front beam as a cantilever (back beam free at its base, no
+# crossbeams: it carries no load and the front beam is a plain cantilever).
+# ---------------------------------------------------------------------------------------
+
+E, T, DEPTH, L = 12.0, 1.5, 20.0, 120.0
+
+
+def _cantilever_finger(objects, stiffness, loads=()):
+    return fr.Finger(
+        material=fr.Material(E, 0.45),
+        front_base=(0.0, 0.0),
+        back_base=(40.0, 0.0),
+        tip=(0.0, L),
+        front=fr.Section(T, DEPTH),
+        back=fr.Section(T, DEPTH),
+        crossbeams=fr.Crossbeams([], [], [], []),
+        adaptor=fr.Adaptor(back_base="free"),
+        loads=tuple(loads),
+        objects=tuple(objects),
+        contact=fr.Contact(stiffness=stiffness, max_penetration=0.002),
+    )
+
+
+def _flexibility(a):
+    """Deflection per unit force at s = a of a Timoshenko cantilever loaded at a."""
+    EI = E * DEPTH * T**3 / 12.0
+    kGA = (5.0 / 6.0) * E / (2 * 1.45) * DEPTH * T
+    return a**3 / (3 * EI) + a / kGA
+
+
+def test_cylinder_pressed_into_a_cantilever_converges_to_rigid_contact():
+    """A thin cylinder (radius 1) pushed d = 1 mm past first touch at s = a = 60: in the
+    rigid-contact limit the beam deflects by d there, so the force is d / flexibility(a)
+    (linear theory; the nonlinear terms and the shift of the contact point around the
+    cylinder are ~1e-3 here). The penalty force approaches it as the penalty stiffens
+    (the penetration, which the beam does not feel, shrinks)."""
+    a, radius, d, clear = 60.0, 1.0, 1.0, 0.05
+    rigid = d / _flexibility(a)
+    errors = []
+    for k in (0.1, 1.0, 10.0):
+        obj = fr.Circle((-(radius + T / 2) - clear, a), radius)
+        finger = _cantilever_finger([obj], k)
+        g = fr.grasp(finger, d + clear, stiffen=False)
+        assert g.converged
+        assert abs(float(g.contact.force[2])) < 0.05 * rigid
+        errors.append(abs(float(g.contact.force[0]) - rigid) / rigid)
+    assert errors[0] > errors[1] > errors[2]
+    assert errors[0] > 3.0 * errors[2]
+    assert errors[2] < 5e-3
+
+
+def test_tip_pressed_onto_a_wall_converges_to_rigid_contact():
+    """A tip force P pushes the cantilever's tip onto a flat wall a = 0.5 mm away (the free
+    deflection would be 1.5 mm): the wall carries P - a / flexibility(L)."""
+    gap = 0.5
+    P = 3.0 * gap / _flexibility(L)
+    wall = fr.HalfPlane((-(T / 2 + gap), 0.0), (1.0, 0.0))
+    load = fr.PointLoad(0, L, (-P, 0.0, 0.0))
+    rigid = P - gap / _flexibility(L)
+    errors = []
+    for k in (0.01, 0.1, 1.0):
+        finger = _cantilever_finger([wall], k, [load])
+        stepper = _Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
+        t, sol, ok = stepper.follow(lambda u: finger.scale_loads(u), 0.0, 1.0, None, 0.25, 1e-4)
+        assert ok and t == 1.0
+        res = fr.contact_result(finger, sol, (-1.0, 0.0))
+        errors.append(abs(float(res.force[0]) - rigid) / rigid)
+    assert errors[0] > errors[1] > errors[2]
+    assert errors[0] > 3.0 * errors[2]
+    assert errors[2] < 5e-3
+
+
+# ---------------------------------------------------------------------------------------
+# Grasps of the default finger
+# ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def finger1():
+    finger, _ = fr.io.load_finger("examples/finger1.toml")
+    return eqx.tree_at(lambda f: f.objects, finger.with_loads(), (fr.Circle((-11.0, 60.0), 9.0),))
+
+
+MODIFIED = fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+
+
+@pytest.fixture(scope="module")
+def grasps(finger1):
+    original = fr.grasp(finger1, 5.0)
+    modified = fr.grasp(eqx.tree_at(lambda f: f.adaptor, finger1, MODIFIED), 5.0)
+    return original, modified
+
+
+def _balance(g: fr.GraspSolution):
+    sol = g.solution
+    total = sol.reactions_front.force + sol.reactions_back.force
+    return total + g.contact.support_force + g.contact.force
+
+
+@pytest.mark.parametrize("which", [0, 1], ids=["original", "modified"])
+def test_grasp_balances_and_respects_the_penetration_limit(grasps, finger1, which):
+    g = grasps[which]
+    assert g.converged
+    scale = float(g.contact.normal_force)
+    assert scale > 0.1
+    # Contact forces balance everything the adaptor applies (reactions and support).
+    assert float(jnp.max(jnp.abs(_balance(g)))) < 1e-3 * scale
+    # The moment balance about the origin, with the contact forces integrated along s.
+    assert float(g.contact.max_penetration) <= 0.02 * float(finger1.front.thickness) + 1e-12
+    assert float(g.contact.contact_length) > 0
+    assert float(g.contact.actuator_force) > 0
+
+
+def test_modified_adaptor_grips_harder(grasps):
+    original, modified = grasps
+    assert float(modified.contact.normal_force) > 2.0 * float(original.contact.normal_force)
+    # the support pushes the back beam forward only (toward the front beam: -x here)
+    assert float(modified.contact.support_force[0]) < 0
+    assert float(jnp.linalg.norm(original.contact.support_force)) == 0.0
+
+
+def test_mirrored_finger_grasps_symmetrically(finger1, grasps):
+    """A finger mirrored about x = 0 with the object mirrored: mirrored forces."""
+    mirror = lambda p: (-p[0], p[1])
+    m = eqx.tree_at(
+        lambda f: (f.front_base, f.back_base, f.tip),
+        finger1,
+        tuple(jnp.asarray(mirror(p)) for p in (finger1.front_base, finger1.back_base, finger1.tip)),
+    )
+    m = eqx.tree_at(lambda f: f.objects, m, (fr.Circle((11.0, 60.0), 9.0),))
+    g = fr.grasp(m, 5.0, direction=(1.0, 0.0))
+    ref = grasps[0].contact
+    assert float(g.contact.force[0]) == pytest.approx(-float(ref.force[0]), rel=1e-8)
+    assert float(g.contact.force[2]) == pytest.approx(float(ref.force[2]), rel=1e-6, abs=1e-9)
+    assert float(g.contact.normal_force) == pytest.approx(float(ref.normal_force), rel=1e-8)
+
+
+def test_unilateral_support_never_pulls(finger1):
+    """Pull the back beam forward (away from the support): the support carries nothing and
+    the answer equals the finger without a support; push it backward: the support pushes
+    forward only."""
+    base = eqx.tree_at(lambda f: f.objects, finger1, ())
+    with_support = eqx.tree_at(
+        lambda f: f.adaptor, base, fr.Adaptor(back_clamp_length=10.0, support_length=60.0)
+    )
+    without = eqx.tree_at(lambda f: f.adaptor, base, fr.Adaptor(back_clamp_length=10.0))
+    for sign in (-1.0, 1.0):
+        load = fr.PointLoad(1, 40.0, (sign * 0.5, 0.0, 0.0))
+        a = fr.solve_finger(with_support.with_loads(load), mode="planar")
+        b = fr.solve_finger(without.with_loads(load), mode="planar")
+        assert a.converged and b.converged
+        res = fr.contact_result(with_support.with_loads(load), a, (-1.0, 0.0))
+        if sign < 0:  # forward: no contact with the support
+            assert float(jnp.linalg.norm(res.support_force)) == 0.0
+            assert float(jnp.max(jnp.abs(a.back.position - b.back.position))) < 1e-9
+        else:  # backward: the support pushes toward -x and reduces the motion
+            assert float(res.support_force[0]) < -0.1
+            assert float(a.back.position[len(a.back.s) // 3, 0]) < float(
+                b.back.position[len(b.back.s) // 3, 0]
+            )
+    # balance with the support's force included
+    load = fr.PointLoad(1, 40.0, (0.5, 0.0, 0.0))
+    a = fr.solve_finger(with_support.with_loads(load), mode="planar")
+    res = fr.contact_result(with_support.with_loads(load), a, (-1.0, 0.0))
+    total = a.reactions_front.force + a.reactions_back.force + res.support_force
+    assert float(jnp.max(jnp.abs(total + jnp.array([0.5, 0.0, 0.0])))) < 1e-6
+
+
+def test_zero_clamp_length_without_support_is_the_original_adaptor(finger1, grasps):
+    g = fr.grasp(eqx.tree_at(lambda f: f.adaptor, finger1, fr.Adaptor(back_clamp_length=0.0)), 5.0)
+    assert float(g.contact.normal_force) == pytest.approx(
+        float(grasps[0].contact.normal_force), rel=1e-12
+    )
+
+
+def test_balance_helper_agrees_for_loads_only(finger1):
+    """The global balance helper of the core tests still holds with a support present and
+    no contact (guards the segment table rewrite)."""
+    f = eqx.tree_at(lambda f: f.objects, finger1, ())
+    f = f.with_loads(fr.PointLoad(0, 60.0, (0.5, 0.0, 0.0)))
+    sol = fr.solve_finger(f, mode="planar")
+    assert sol.converged
+    force, moment, _ = global_balance(f, sol)
+    assert max(float(jnp.max(jnp.abs(force))), float(jnp.max(jnp.abs(moment)))) < 1e-8
+
+
+# ---------------------------------------------------------------------------------------
+# Bad input
+# ---------------------------------------------------------------------------------------
+
+
+def test_bad_input_is_named(finger1):
+    with pytest.raises(fr.FingerError, match=r"objects\[0\] \(circle\) overlaps the front beam"):
+        fr.validate_finger(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-1.0, 60.0), 9.0),)))
+    with pytest.raises(fr.FingerError, match=r"objects\[0\] \(circle\) is outside the reach"):
+        fr.grasp(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-20.0, 200.0), 9.0),)), 5.0)
+    with pytest.raises(fr.FingerError, match=r"objects\[0\] \(circle\) lies behind"):
+        fr.grasp(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((80.0, 60.0), 9.0),)), 5.0)
+    with pytest.raises(fr.FingerError, match=r"contact.friction must be non-negative, got -0.2"):
+        fr.validate_finger(eqx.tree_at(lambda f: f.contact, finger1, fr.Contact(friction=-0.2)))
+    with pytest.raises(fr.FingerError, match=r"adaptor.support_length = 5.0 must lie in"):
+        fr.validate_finger(
+            eqx.tree_at(
+                lambda f: f.adaptor, finger1, fr.Adaptor(back_clamp_length=20.0, support_length=5.0)
+            )
+        )
+    with pytest.raises(fr.FingerError, match=r"objects\[0\].radius must be positive"):
+        fr.validate_finger(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-11.0, 60.0), -1.0),)))
+    with pytest.raises(fr.FingerError, match=r"convex polygon"):
+        bad = fr.Polygon([[0.0, 0.0], [0.0, 3.0], [3.0, 0.0]], (-20.0, 60.0))  # clockwise
+        fr.validate_finger(eqx.tree_at(lambda f: f.objects, finger1, (bad,)))
+    with pytest.raises(fr.FingerError, match=r"closing must be a non-negative"):
+        fr.grasp(finger1, -1.0)
+    with pytest.raises(fr.FingerError, match=r"friction must be a non-negative"):
+        fr.release_force(fr.grasp(finger1, 0.0), friction=-0.1)
+
+
+# ---------------------------------------------------------------------------------------
+# Holding force
+# ---------------------------------------------------------------------------------------
+
+
+def test_holding_force_grows_with_closing_and_with_friction(finger1):
+    peaks = []
+    for closing in (3.0, 6.0):
+        g = fr.grasp(finger1, closing)
+        tr = fr.release_force(g, step=3.0)
+        assert tr.complete, tr.message
+        peaks.append(tr.peak)
+    assert peaks[0] > 0 and peaks[1] > peaks[0]
+    # mu = 0 is the purely geometric resistance; friction adds to it
+    g = fr.grasp(finger1, 6.0)
+    rough = fr.release_force(g, step=3.0, friction=0.3)
+    assert rough.peak > peaks[1]
