@@ -117,13 +117,23 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         exact = -(n_b[:, -1] - n_b[:, 0]) - dist
         so, ss, qo = (_blocks_integral(x, s_b, sol.steps) for x in (f_obj, f_sup, q_obj[:, None]))
         sampled = so + ss
+        tiny = 1e-24 * jnp.maximum(jnp.sum(exact * exact, axis=1), 1e-300)
         size = jnp.sum(sampled * sampled, axis=1)
-        ok = size > 1e-24 * jnp.maximum(jnp.sum(exact * exact, axis=1), 1e-300)
-        scale = jnp.where(ok, jnp.sum(exact * sampled, axis=1) / jnp.where(ok, size, 1.0), 1.0)
-        obj_part = jnp.where(ok[:, None], scale[:, None] * so, exact - ss)
+        has_o = jnp.sum(so * so, axis=1) > tiny
+        has_s = jnp.sum(ss * ss, axis=1) > tiny
+        scale = jnp.where(
+            size > tiny, jnp.sum(exact * sampled, axis=1) / jnp.maximum(size, tiny), 1.0
+        )
+        # all of the segment's contact force goes to what touches it; if both do, split
+        # by the sampled shares
+        obj_part = jnp.where(
+            (~has_s)[:, None], exact, jnp.where(has_o[:, None], scale[:, None] * so, 0.0)
+        )
         force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
         support = support + jnp.insert(jnp.sum(exact - obj_part, axis=0), 1, 0.0)
-        q_exact = jnp.where(ok, scale * qo[:, 0], jnp.linalg.norm(obj_part, axis=1))
+        q_exact = jnp.where(
+            has_o & (size > tiny), scale * qo[:, 0], jnp.linalg.norm(obj_part, axis=1)
+        )
         normal = normal + jnp.sum(q_exact)
         pressures.append(q_obj)
     reactions = sol.reactions_front.force + sol.reactions_back.force + support
@@ -203,8 +213,7 @@ def _moved(finger: Finger, displacement) -> Finger:
 
 
 def _with_stiffness(finger: Finger, k) -> Finger:
-    c = eqx.tree_at(lambda c: c.stiffness, finger.contact, as_float(k),
-                    is_leaf=lambda x: x is None)
+    c = eqx.tree_at(lambda c: c.stiffness, finger.contact, as_float(k), is_leaf=lambda x: x is None)
     return eqx.tree_at(lambda f: f.contact, finger, c)
 
 
@@ -216,11 +225,21 @@ def _unit(direction, name):
 
 
 class _Stepper:
-    """Warm-started equilibria along a path of object displacements, with step halving."""
+    """Warm-started equilibria along a path of object displacements, with step halving.
 
-    def __init__(self, finger, mode, integrator, options):
+    validate: check the finger (False for a finger whose objects were moved into contact
+    by a previous grasp: its start no longer has the objects clear of the beams)."""
+
+    def __init__(self, finger, mode, integrator, options, validate=True):
+        from ._assembly import build_topology
+        from ._types import check_x64
+
         self.finger = finger
-        self.topo = prepare(finger, mode)
+        if validate:
+            self.topo = prepare(finger, mode)
+        else:
+            check_x64("finray_jax")
+            self.topo = build_topology(finger, mode)
         self.integrator = integrator
         self.options = options
         self.calls = 0
@@ -321,8 +340,9 @@ def grasp(
         if not np.isfinite(fa) or fa < 0:
             raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
     stepper = _Stepper(finger, mode, integrator, options)
-    k = float(default_stiffness(finger) if finger.contact.stiffness is None
-              else finger.contact.stiffness)
+    k = float(
+        default_stiffness(finger) if finger.contact.stiffness is None else finger.contact.stiffness
+    )
     finger = _with_stiffness(finger, k)
 
     def at(t):
@@ -351,10 +371,14 @@ def grasp(
             res = contact_result(at(t), sol, w)
         rounds += 1
     if not ok:
-        sol = eqx.tree_at(lambda s: s.result, sol, RESULTS.where(
-            jnp.asarray(False), RESULTS.successful, RESULTS.nonlinear_divergence))
-    return GraspSolution(sol, res, at(t), jnp.asarray(t), jnp.asarray(k), stepper.calls,
-                         2 if symmetric else 1)
+        sol = eqx.tree_at(
+            lambda s: s.result,
+            sol,
+            RESULTS.where(jnp.asarray(False), RESULTS.successful, RESULTS.nonlinear_divergence),
+        )
+    return GraspSolution(
+        sol, res, at(t), jnp.asarray(t), jnp.asarray(k), stepper.calls, 2 if symmetric else 1
+    )
 
 
 def _find_closing(stepper, at, w, target):
@@ -439,7 +463,7 @@ def release_force(
     finger = eqx.tree_at(lambda f: f.contact, finger, c)
     if max_pull is None:
         max_pull = float(np.ptp(np.asarray(g.solution.front.position[:, 2]))) + 2 * step
-    stepper = _Stepper(finger, mode, integrator, options)
+    stepper = _Stepper(finger, mode, integrator, options, validate=False)
 
     def at(t):
         return _moved(finger, t * w)

@@ -167,7 +167,8 @@ def _parser() -> argparse.ArgumentParser:
         "demo",
         help="solve the default finger under the paper's Fig. 3 load",
         description="Solve Finger-1 (examples/finger1.toml) under 4 N in +x "
-        "spread over l5..l7; write DIR/demo.png and DIR/demo.json.",
+        "spread over l5..l7 (DIR/demo.png, DIR/demo.json), then grasp an 18 mm cylinder "
+        "with the original and the modified adaptor (DIR/demo_grasp.png).",
     )
     d.add_argument(
         "--out",
@@ -175,6 +176,50 @@ def _parser() -> argparse.ArgumentParser:
         default=".",
         help="output directory (default: the current directory)",
     )
+
+    gr = sub.add_parser(
+        "grasp",
+        help="close a finger file's finger on its objects ([[objects]], [grasp])",
+        description="Solve the grasp of a finger file with [[objects]] and [grasp]: contact "
+        "force, pressure, penetration, actuator force; with --release also trace the "
+        "pull-out and report the holding force. Exit 0 converged, 3 failed, 1 user error.",
+    )
+    gr.add_argument("finger", metavar="FINGER.toml")
+    gr.add_argument("--out", metavar="RESULT.json", help="write the grasp as JSON")
+    gr.add_argument("--plot", metavar="GRASP.png", help="save a figure of the grasp")
+    gr.add_argument("--release", action="store_true", help="also trace the release force")
+    gr.add_argument(
+        "--friction",
+        type=_finite_float,
+        default=None,
+        metavar="MU",
+        help="friction coefficient for the release trace (default: [contact])",
+    )
+
+    cmp_ = sub.add_parser(
+        "compare",
+        help="original vs modified adaptor (the paper's Fig. 4 and Table 2 settings)",
+        description="Grasp an 18 mm cylinder with Finger-1 on the original and the modified "
+        "adaptor at the same closing displacement, and trace the release force of 35, 50 and "
+        "65 mm cylinders; print our figures beside the paper's. Writes DIR/compare.png and "
+        "DIR/compare.json.",
+    )
+    cmp_.add_argument("--out", metavar="DIR", default=".")
+    cmp_.add_argument("--closing", type=_finite_float, default=6.0, metavar="MM")
+    cmp_.add_argument("--friction", type=_finite_float, default=0.0, metavar="MU")
+    cmp_.add_argument(
+        "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
+    )
+
+    cs = sub.add_parser(
+        "clamp-study",
+        help="best back-beam clamp length against object size (the paper's Fig. 5)",
+        description="Contact force of the modified adaptor against the back beam's clamp "
+        "length for cylinders of increasing size. Writes DIR/clamp_study.png and .json.",
+    )
+    cs.add_argument("--out", metavar="DIR", default=".")
+    cs.add_argument("--closing", type=_finite_float, default=6.0, metavar="MM")
+    cs.add_argument("--finger", metavar="FINGER.toml", default=None)
 
     sw = sub.add_parser(
         "sweep",
@@ -384,7 +429,19 @@ def _cmd_demo(args) -> int:
 
     save_solution_figure(sol, finger, png, title="Finger-1, 4 N over l5..l7")
     print(f"wrote {png}\nwrote {js}")
-    return STATUS_EXIT[sol.status]
+
+    from .plot import grasp_figure, save_figure
+    from .studies import compare_adaptors
+
+    print("\nGrasping an 18 mm cylinder: original vs modified adaptor (front base pinned, "
+          "back beam clamped over 20 mm, rigid support to 60 mm), same closing of 6 mm")
+    cmp = compare_adaptors(finger, closing=6.0, release_diameters=(), progress=_progress)
+    print("\n".join(_comparison_lines(cmp)))
+    grasp_png = os.path.join(out, "demo_grasp.png")
+    save_figure(grasp_figure([cmp.original, cmp.modified], ["original", "modified"]), grasp_png)
+    print(f"wrote {grasp_png}")
+    ok = cmp.original.converged and cmp.modified.converged
+    return STATUS_EXIT[sol.status] if ok else EXIT_FAILED
 
 
 def _cmd_sweep(args) -> int:
@@ -415,7 +472,220 @@ def _cmd_sweep(args) -> int:
     return EXIT_OK
 
 
+def _progress(msg):
+    print(f"  ... {msg}", file=sys.stderr, flush=True)
+
+
+def _grasp_dict(g, release=None) -> dict:
+    c = g.contact
+    out = {
+        "status": g.status,
+        "closing": float(g.closing),
+        "penalty_stiffness": float(g.stiffness),
+        "max_residual": float(g.solution.max_residual),
+        "contact": {
+            "force": np.asarray(c.force).tolist(),
+            "normal_force": float(c.normal_force),
+            "contact_length": float(c.contact_length),
+            "max_penetration": float(c.max_penetration),
+            "support_force": np.asarray(c.support_force).tolist(),
+            "crossbeam_force_mean": np.asarray(c.crossbeam_force).tolist(),
+            "actuator_force": float(c.actuator_force),
+            "pressure_front": {
+                "s": np.asarray(g.solution.front.s).tolist(),
+                "q": np.asarray(c.pressure_front).tolist(),
+            },
+            "pressure_back": {
+                "s": np.asarray(g.solution.back.s).tolist(),
+                "q": np.asarray(c.pressure_back).tolist(),
+            },
+        },
+        "reactions": {
+            "front": {
+                "force": np.asarray(g.solution.reactions_front.force).tolist(),
+                "moment": np.asarray(g.solution.reactions_front.moment).tolist(),
+            },
+            "back": {
+                "force": np.asarray(g.solution.reactions_back.force).tolist(),
+                "moment": np.asarray(g.solution.reactions_back.moment).tolist(),
+            },
+        },
+    }
+    if release is not None:
+        out["release"] = {
+            "peak": release.peak,
+            "peak_pull": release.peak_pull,
+            "complete": release.complete,
+            "message": release.message,
+            "pull": release.pull.tolist(),
+            "force": release.force.tolist(),
+        }
+    return out
+
+
+def _grasp_lines(g, name="") -> list[str]:
+    c = g.contact
+    head = f"{name}: " if name else ""
+    return [
+        f"{head}{g.status} at closing {float(g.closing):.4g} mm "
+        f"(penalty stiffness {float(g.stiffness):.4g} N/mm^2)",
+        f"  contact force     {_f(c.normal_force)} N  (x {_f(c.force[0])}, z {_f(c.force[2])})",
+        f"  contact length    {_f(c.contact_length)} mm, max penetration "
+        f"{_f(c.max_penetration)} mm",
+        f"  crossbeam force   x {_f(c.crossbeam_force[0])}, z {_f(c.crossbeam_force[2])} N "
+        "(mean on the front beam)",
+        f"  actuator force    {_f(c.actuator_force)} N",
+    ]
+
+
+def _cmd_grasp(args) -> int:
+    finger, settings = fio.load_finger(args.finger)
+    if settings.grasp is None:
+        raise UserError(f"{args.finger} has no [grasp] table (closing or actuator_force)")
+    gs = settings.grasp
+    t0 = time.perf_counter()
+    g = fr.grasp(finger, **gs.grasp_kwargs())
+    print("\n".join(_grasp_lines(g, settings.name or args.finger)))
+    print(f"  solved in {time.perf_counter() - t0:.2f} s")
+    trace = None
+    if args.release and g.converged:
+        trace = fr.release_force(g, step=gs.pull_step, friction=args.friction)
+        print(
+            f"  holding force     {_f(trace.peak)} N at pull {_f(trace.peak_pull)} mm "
+            f"({trace.message})"
+        )
+    if args.out:
+        fio.write_json(args.out, _grasp_dict(g, trace))
+        print(f"wrote {args.out}")
+    if args.plot:
+        from .plot import grasp_figure, save_figure
+
+        save_figure(grasp_figure([g], [settings.name or "grasp"]), args.plot)
+        print(f"wrote {args.plot}")
+    return EXIT_OK if g.converged else EXIT_FAILED
+
+
+def _study_finger(path):
+    if path is None:
+        finger, _ = fio.loads_finger(DEMO_FINGER_TOML, source=DEMO_SOURCE)
+    else:
+        finger, _ = fio.load_finger(path)
+    return finger
+
+
+def _comparison_lines(cmp) -> list[str]:
+    from .studies import PAPER_CONTACT_FORCE_GAIN, PAPER_RELEASE_RANGE
+
+    o, m = cmp.original.contact, cmp.modified.contact
+    rows = [
+        [
+            "contact force (N)",
+            _f(o.normal_force),
+            _f(m.normal_force),
+            f"{cmp.contact_force_gain:+.0f} %",
+            f"+{PAPER_CONTACT_FORCE_GAIN:.0f} % (simulated)",
+        ],
+        ["contact length (mm)", _f(o.contact_length), _f(m.contact_length), "", ""],
+        ["crossbeam force x (N)", _f(o.crossbeam_force[0]), _f(m.crossbeam_force[0]), "", ""],
+        ["crossbeam force z (N)", _f(o.crossbeam_force[2]), _f(m.crossbeam_force[2]), "", ""],
+    ]
+    lo, hi = PAPER_RELEASE_RANGE
+    for d, (a, b) in cmp.release.items():
+        rows.append(
+            [
+                f"release force, {d:g} mm (N)",
+                _f(a.peak),
+                _f(b.peak),
+                f"{cmp.release_gain(d):+.0f} %",
+                f"+{lo:.0f} to +{hi:.0f} % (measured)",
+            ]
+        )
+    head = [
+        "18 mm object, closing " + f"{cmp.closing:g} mm",
+        "original",
+        "modified",
+        "change",
+        "paper",
+    ]
+    return _table(head, rows)
+
+
+def _cmd_compare(args) -> int:
+    from .plot import grasp_figure, save_figure
+    from .studies import compare_adaptors
+
+    finger = _study_finger(args.finger)
+    t0 = time.perf_counter()
+    cmp = compare_adaptors(finger, closing=args.closing, friction=args.friction, progress=_progress)
+    print("\n".join(_comparison_lines(cmp)))
+    print(
+        f"({time.perf_counter() - t0:.1f} s; frictionless release unless --friction; see "
+        "docs/grasping.md for the model and why our figures differ from the paper's)"
+    )
+    os.makedirs(args.out, exist_ok=True)
+    png = os.path.join(args.out, "compare.png")
+    save_figure(grasp_figure([cmp.original, cmp.modified], ["original", "modified"]), png)
+    js = os.path.join(args.out, "compare.json")
+    fio.write_json(
+        js,
+        {
+            "closing": cmp.closing,
+            "original": _grasp_dict(cmp.original),
+            "modified": _grasp_dict(cmp.modified),
+            "contact_force_gain_percent": cmp.contact_force_gain,
+            "release": {
+                str(d): {
+                    "original": a.peak,
+                    "modified": b.peak,
+                    "gain_percent": cmp.release_gain(d),
+                }
+                for d, (a, b) in cmp.release.items()
+            },
+        },
+    )
+    print(f"wrote {png}\nwrote {js}")
+    ok = cmp.original.converged and cmp.modified.converged
+    return EXIT_OK if ok else EXIT_FAILED
+
+
+def _cmd_clamp_study(args) -> int:
+    from .plot import clamp_study_figure, save_figure
+    from .studies import clamp_study
+
+    finger = _study_finger(args.finger)
+    st = clamp_study(finger, closing=args.closing, progress=_progress)
+    head = ["object (mm)"] + [f"l_c={x:g}" for x in st.clamp_lengths] + ["best l_c"]
+    rows = [
+        [f"{d:g}"] + [_f(x) for x in row] + [f"{b:g}"]
+        for d, row, b in zip(st.diameters, st.normal_force, st.best, strict=True)
+    ]
+    print(
+        "contact force (N) of the modified adaptor, support up to "
+        f"{st.support_length:g} mm, closing {args.closing:g} mm"
+    )
+    print("\n".join(_table(head, rows)))
+    os.makedirs(args.out, exist_ok=True)
+    png = os.path.join(args.out, "clamp_study.png")
+    save_figure(clamp_study_figure(st), png)
+    js = os.path.join(args.out, "clamp_study.json")
+    fio.write_json(
+        js,
+        {
+            "diameters": st.diameters.tolist(),
+            "clamp_lengths": st.clamp_lengths.tolist(),
+            "support_length": st.support_length,
+            "normal_force": st.normal_force.tolist(),
+            "best_clamp_length": st.best.tolist(),
+        },
+    )
+    print(f"wrote {png}\nwrote {js}")
+    return EXIT_OK
+
+
 COMMANDS = {
+    "grasp": _cmd_grasp,
+    "compare": _cmd_compare,
+    "clamp-study": _cmd_clamp_study,
     "solve": _cmd_solve,
     "limit": _cmd_limit,
     "validate": _cmd_validate,

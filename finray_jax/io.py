@@ -23,6 +23,7 @@ import numpy as np
 
 from . import (
     Adaptor,
+    Contact,
     Crossbeams,
     DistributedLoad,
     Finger,
@@ -88,10 +89,35 @@ class SolveSettings:
     options: SolverOptions = dataclasses.field(default_factory=SolverOptions)
     name: str = ""
     description: str = ""
+    grasp: GraspSettings | None = None
 
     def solve_kwargs(self) -> dict:
         """Keyword arguments for `solve_finger` and `limit_load`."""
         return {"mode": self.mode, "integrator": self.integrator, "options": self.options}
+
+
+@dataclasses.dataclass(frozen=True)
+class GraspSettings:
+    """The [grasp] table: how to close the finger on its objects (see `grasp`).
+
+    closing (mm) or actuator_force (N); direction: the closing direction (x, z) of the
+    finger's base; symmetric: a two-finger parallel grasp; pull_step: the step (mm) of
+    the release-force trace.
+    """
+
+    closing: float | None = None
+    actuator_force: float | None = None
+    direction: tuple = (-1.0, 0.0)
+    symmetric: bool = True
+    pull_step: float = 2.0
+
+    def grasp_kwargs(self) -> dict:
+        return {
+            "closing": self.closing,
+            "actuator_force": self.actuator_force,
+            "direction": self.direction,
+            "symmetric": self.symmetric,
+        }
 
 
 # --------------------------------------------------------------------------------------
@@ -264,6 +290,9 @@ _TOP_KEYS = (
     "adaptor",
     "loads",
     "solver",
+    "objects",
+    "contact",
+    "grasp",
 )
 _TOP_HINTS = {
     "crossbeam": "unknown key (did you mean 'crossbeams'? write one [[crossbeams]] table per "
@@ -363,7 +392,7 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     ad = r.table(
         doc.get("adaptor", {}),
         "adaptor",
-        ("front_base", "back_base", "front_clamp_length", "back_clamp_length"),
+        ("front_base", "back_base", "front_clamp_length", "back_clamp_length", "support_length"),
     )
     adaptor = Adaptor(
         front_base=r.string(ad.get("front_base", "clamped"), "adaptor.front_base", BASE_KINDS),
@@ -374,7 +403,15 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
         back_clamp_length=r.number(
             ad.get("back_clamp_length", 0.0), "adaptor.back_clamp_length", nonnegative=True
         ),
+        support_length=None
+        if "support_length" not in ad
+        else r.number(ad["support_length"], "adaptor.support_length", nonnegative=True),
     )
+    objects = tuple(
+        _object(o, f"objects[{i}]", r)
+        for i, o in enumerate(r.array_of_tables(doc.get("objects", []), "objects"))
+    )
+    contact = _contact(doc.get("contact", {}), r)
 
     # [[loads]]
     loads = tuple(
@@ -383,6 +420,8 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
     )
 
     settings = _settings(doc.get("solver", {}), r, name, description)
+    if "grasp" in doc:
+        settings = dataclasses.replace(settings, grasp=_grasp(doc["grasp"], r))
 
     finger = Finger(
         material=material,
@@ -397,6 +436,8 @@ def _parse(doc: dict, r: _Reader) -> tuple[Finger, SolveSettings]:
         front_curvature=curvature["front"],
         back_curvature=curvature["back"],
         torsion=torsion,
+        objects=objects,
+        contact=contact,
     )
     try:
         validate_finger(finger)
@@ -558,6 +599,85 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
     return SolveSettings(mode, integrator, options, name, description)
 
 
+_OBJECT_KEYS = {
+    "circle": (("center", "radius"), ()),
+    "ellipse": (("center", "semi_axes"), ("angle_deg",)),
+    "rounded_rectangle": (("center", "half_size"), ("corner_radius", "angle_deg")),
+    "polygon": (("vertices",), ("center", "corner_radius", "angle_deg")),
+    "half_plane": (("point", "normal"), ()),
+}
+
+
+def _object(value, p: str, r: _Reader):
+    """One [[objects]] table: kind, then the kind's keys (points (x, z) in mm, angles in
+    degrees)."""
+    from ._objects import OBJECT_KINDS
+
+    if not isinstance(value, dict):
+        raise r.error(p, f"expected a table [[objects]], got {_type_name(value)}", value)
+    if "kind" not in value:
+        raise r.error(f"{p}.kind", f"missing required key (one of {', '.join(_OBJECT_KEYS)})")
+    kind = r.string(value["kind"], f"{p}.kind", tuple(_OBJECT_KEYS))
+    need, optional = _OBJECT_KEYS[kind]
+    tbl = r.table(value, p, ("kind",) + need + optional, required=need)
+    args = {}
+    for key in need + optional:
+        if key not in tbl:
+            continue
+        path = f"{p}.{key}"
+        if key in ("center", "point", "normal"):
+            args[key] = r.vector(tbl[key], path, 2, "a point [x, z]")
+        elif key in ("semi_axes", "half_size"):
+            args[key] = r.vector(tbl[key], path, 2, "two lengths [along x, along z]")
+        elif key == "vertices":
+            pts = tbl[key]
+            if not isinstance(pts, list) or len(pts) < 3:
+                raise r.error(path, "must be a list of 3 or more points [x, z]", pts)
+            args[key] = [
+                r.vector(v, f"{path}[{i}]", 2, "a point [x, z]") for i, v in enumerate(pts)
+            ]
+        elif key == "angle_deg":
+            args["angle"] = np.deg2rad(r.number(tbl[key], path))
+        else:
+            args[key] = r.number(tbl[key], path, positive=key == "radius")
+    return OBJECT_KINDS[kind](**args)
+
+
+def _contact(value, r: _Reader) -> Contact:
+    keys = ("stiffness", "max_penetration", "friction", "friction_regularisation", "segment_length")
+    tbl = r.table(value, "contact", keys)
+    args = {}
+    for key in keys:
+        if key in tbl:
+            args[key] = r.number(
+                tbl[key],
+                f"contact.{key}",
+                positive=key != "friction",
+                nonnegative=key == "friction",
+            )
+    return Contact(**args)
+
+
+def _grasp(value, r: _Reader) -> GraspSettings:
+    keys = ("closing", "actuator_force", "direction", "symmetric", "pull_step")
+    tbl = r.table(value, "grasp", keys)
+    if ("closing" in tbl) == ("actuator_force" in tbl):
+        raise r.error("grasp", "give exactly one of closing (mm) and actuator_force (N)")
+    return GraspSettings(
+        closing=r.number(tbl["closing"], "grasp.closing", nonnegative=True)
+        if "closing" in tbl
+        else None,
+        actuator_force=r.number(tbl["actuator_force"], "grasp.actuator_force", nonnegative=True)
+        if "actuator_force" in tbl
+        else None,
+        direction=tuple(
+            r.vector(tbl.get("direction", [-1.0, 0.0]), "grasp.direction", 2, "a direction [x, z]")
+        ),
+        symmetric=r.boolean(tbl.get("symmetric", True), "grasp.symmetric"),
+        pull_step=r.number(tbl.get("pull_step", 2.0), "grasp.pull_step", positive=True),
+    )
+
+
 def _toml_paths(msg: str) -> str:
     """Rename validate_finger's field names to the finger file's key paths."""
     msg = re.sub(r"(?<![\w.])front_base\b", "front.base", msg)
@@ -678,8 +798,10 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
         f"back_base = {_ts(ad.back_base)}",
         f"front_clamp_length = {_tf(ad.front_clamp_length)}",
         f"back_clamp_length = {_tf(ad.back_clamp_length)}",
+        *([] if ad.support_length is None else [f"support_length = {_tf(ad.support_length)}"]),
         "",
     ]
+    out += _objects_toml(finger)
     cb = finger.crossbeams
     for i in range(finger.n_crossbeams):
         out += [
@@ -716,6 +838,34 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
     if settings is not None:
         out += _settings_toml(settings)
     return "\n".join(out).rstrip("\n") + "\n"
+
+
+def _objects_toml(finger: Finger) -> list[str]:
+    out = []
+    for obj in finger.objects:
+        out += ["[[objects]]", f"kind = {_ts(obj.kind)}"]
+        need, optional = _OBJECT_KEYS[obj.kind]
+        for key in need + optional:
+            if key == "angle_deg":
+                out.append(f"angle_deg = {_tf(np.rad2deg(float(obj.angle)))}")
+            elif key == "vertices":
+                out.append("vertices = [" + ", ".join(_tv(v) for v in obj.vertices) + "]")
+            else:
+                v = getattr(obj, key)
+                out.append(f"{key} = {_tv(v) if np.ndim(v) else _tf(v)}")
+        out.append("")
+    c = finger.contact
+    out += ["[contact]"]
+    if c.stiffness is not None:
+        out.append(f"stiffness = {_tf(c.stiffness)}")
+    out += [
+        f"max_penetration = {_tf(c.max_penetration)}",
+        f"friction = {_tf(c.friction)}",
+        f"friction_regularisation = {_tf(c.friction_regularisation)}",
+        f"segment_length = {_tf(c.segment_length)}",
+        "",
+    ]
+    return out if finger.objects or finger.adaptor.support_length is not None else []
 
 
 def _settings_toml(settings: SolveSettings) -> list[str]:

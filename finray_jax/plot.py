@@ -307,3 +307,89 @@ def save_solution_figure(
         os.makedirs(parent, exist_ok=True)
     fig = solution_figure(sol, finger, title=title, components=components)
     fig.savefig(path, dpi=dpi)
+
+
+# --------------------------------------------------------------------------------------
+# Grasps
+# --------------------------------------------------------------------------------------
+
+
+def plot_grasp(g, ax=None, *, title: str | None = None):
+    """The deformed finger of a GraspSolution with its objects and the adaptor's support;
+    returns the axes."""
+    finger = g.finger
+    ax = plot_finger(g.solution, finger, ax=ax, loads=False, legend=False)
+    for obj in finger.objects:
+        out = obj.outline(300)
+        ax.fill(out[:, 0], out[:, 1], color="0.85", ec="0.3", lw=1.0, zorder=0)
+    ad = finger.adaptor
+    if ad.support_length is not None:
+        bb, tip = np.asarray(finger.back_base, float), np.asarray(finger.tip, float)
+        t = (tip - bb) / np.linalg.norm(tip - bb)
+        n = np.array([t[1], -t[0]])  # behind the back beam
+        a = bb + float(ad.back_clamp_length) * t
+        b = bb + float(ad.support_length) * t
+        off = 0.5 * float(finger.back.thickness) + 1.0
+        ax.plot(*np.stack([a, b]).T + off * n[:, None], color="black", lw=4, label="support")
+    if float(ad.back_clamp_length) > 0:
+        bb, tip = np.asarray(finger.back_base, float), np.asarray(finger.tip, float)
+        t = (tip - bb) / np.linalg.norm(tip - bb)
+        c = bb + float(ad.back_clamp_length) * t
+        ax.plot(*np.stack([bb, c]).T, color="0.2", lw=7, alpha=0.5, label="clamped")
+    if title:
+        ax.set_title(title)
+    return ax
+
+
+def grasp_figure(grasps, titles):
+    """Grasps side by side (shape, object, support) and their contact pressure along the
+    front beam below. Returns a matplotlib Figure."""
+    from matplotlib.figure import Figure
+
+    n = len(grasps)
+    fig = Figure(figsize=(5.0 * n, 10), layout="constrained")
+    gs = fig.add_gridspec(2, n, height_ratios=(2.2, 1.0))
+    ax_p = fig.add_subplot(gs[1, :])
+    for i, (g, title) in enumerate(zip(grasps, titles, strict=True)):
+        ax = fig.add_subplot(gs[0, i])
+        c = g.contact
+        plot_grasp(g, ax, title=f"{title}\ncontact force {float(c.normal_force):.3g} N")
+        s = np.asarray(g.solution.front.s)
+        ax_p.plot(s, np.asarray(c.pressure_front), label=f"{title}: front beam")
+        if np.any(np.asarray(c.pressure_back) > 0):
+            ax_p.plot(
+                np.asarray(g.solution.back.s),
+                np.asarray(c.pressure_back),
+                ls="--",
+                label=f"{title}: back beam",
+            )
+    ax_p.set_xlabel("arc length s (mm)")
+    ax_p.set_ylabel("contact pressure (N/mm)")
+    ax_p.grid(True, lw=0.4, alpha=0.5)
+    ax_p.legend(fontsize="small")
+    return fig
+
+
+def save_figure(fig, path, dpi: int = 130) -> None:
+    path = os.fspath(path)
+    parent = os.path.dirname(path)
+    if parent:
+        os.makedirs(parent, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+
+
+def clamp_study_figure(study):
+    """Contact force against the back beam's clamp length, one line per object size."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    for d, row, best in zip(study.diameters, study.normal_force, study.best, strict=True):
+        line = ax.plot(study.clamp_lengths, row, marker="o", label=f"{d:g} mm object")[0]
+        ax.axvline(best, color=line.get_color(), ls=":", lw=1)
+    ax.set_xlabel("back-beam clamp length l_c (mm)")
+    ax.set_ylabel("contact force (N)")
+    ax.set_title(f"modified adaptor, support up to {study.support_length:g} mm")
+    ax.grid(True, lw=0.4, alpha=0.5)
+    ax.legend(fontsize="small")
+    return fig

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import finray_jax as fr
+import finray_jax.io
 from finray_jax._contact import penalty
 from finray_jax._grasp import _Stepper
 
