@@ -24,6 +24,7 @@ from ._grasp import GraspSolution as GraspSolution
 from ._grasp import ReleaseTrace as ReleaseTrace
 from ._grasp import contact_result as contact_result
 from ._grasp import grasp as grasp
+from ._grasp import regrasp as regrasp
 from ._grasp import release_force as release_force
 from ._objects import AbstractObject as AbstractObject
 from ._objects import Circle as Circle

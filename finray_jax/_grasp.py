@@ -197,6 +197,9 @@ class GraspSolution(eqx.Module):
     stiffness: jax.Array
     steps: int = eqx.field(static=True)
     holding_factor: int = eqx.field(static=True, default=2)
+    topology: object = eqx.field(static=True, default=None)
+    direction: tuple = eqx.field(static=True, default=(-1.0, 0.0))
+    integrator: Integrator = Integrator(steps=GRASP_STEPS)
 
     @property
     def status(self) -> str:
@@ -377,8 +380,31 @@ def grasp(
             RESULTS.where(jnp.asarray(False), RESULTS.successful, RESULTS.nonlinear_divergence),
         )
     return GraspSolution(
-        sol, res, at(t), jnp.asarray(t), jnp.asarray(k), stepper.calls, 2 if symmetric else 1
+        sol,
+        res,
+        at(t),
+        jnp.asarray(t),
+        jnp.asarray(k),
+        stepper.calls,
+        2 if symmetric else 1,
+        stepper.topo,
+        tuple(float(x) for x in w),
+        integrator,
     )
+
+
+def regrasp(g: GraspSolution, finger: Finger, closing=None, *, options=SolverOptions()):
+    """Solve the grasp of `finger` (the design of `g.finger`, objects where they were
+    before closing, possibly changed values) at `closing` (default g's), starting Newton
+    from g's equilibrium: a single traced solve, differentiable in every design value and
+    in the closing by the implicit function theorem (use with jax.grad / jax.jacfwd / vmap
+    for designs near g's). Returns (Solution, ContactResult); check `Solution.result`.
+    The penalty stiffness is g's."""
+    closing = g.closing if closing is None else closing
+    w = jnp.asarray(g.direction)
+    moved = _with_stiffness(_moved(finger, -closing * w), g.stiffness)
+    sol, _ = _direct_core(g.topology, g.integrator, options, moved, g.solution.unknowns)
+    return sol, contact_result(moved, sol, w)
 
 
 def _find_closing(stepper, at, w, target):

@@ -225,14 +225,16 @@ def test_unilateral_support_never_pulls(finger1):
         b = fr.solve_finger(without.with_loads(load), mode="planar")
         assert a.converged and b.converged
         res = fr.contact_result(with_support.with_loads(load), a, (-1.0, 0.0))
-        if sign < 0:  # forward: no contact with the support
+        x_a = np.interp(40.0, np.asarray(a.back.s), np.asarray(a.back.position[:, 0]))
+        x_b = np.interp(40.0, np.asarray(b.back.s), np.asarray(b.back.position[:, 0]))
+        if sign < 0:  # forward: no contact with the support, the same answer (to the
+            # integration error: the support cuts the back beam into more segments)
             assert float(jnp.linalg.norm(res.support_force)) == 0.0
-            assert float(jnp.max(jnp.abs(a.back.position - b.back.position))) < 1e-9
+            assert float(jnp.max(jnp.abs(a.tip.displacement - b.tip.displacement))) < 1e-6
+            assert abs(x_a - x_b) < 1e-6
         else:  # backward: the support pushes toward -x and reduces the motion
             assert float(res.support_force[0]) < -0.1
-            assert float(a.back.position[len(a.back.s) // 3, 0]) < float(
-                b.back.position[len(b.back.s) // 3, 0]
-            )
+            assert x_a < x_b
     # balance with the support's force included
     load = fr.PointLoad(1, 40.0, (0.5, 0.0, 0.0))
     a = fr.solve_finger(with_support.with_loads(load), mode="planar")

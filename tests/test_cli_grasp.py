@@ -1,0 +1,62 @@
+"""`finray grasp`, `compare` and `clamp-study` (the paper comparisons are slow)."""
+
+import json
+import pathlib
+
+import pytest
+from test_cli import run
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+GRASP = str(ROOT / "examples" / "grasp_finger1.toml")
+
+
+@pytest.fixture(autouse=True)
+def _no_persistent_cache(monkeypatch):
+    monkeypatch.setenv("FINRAY_NO_CACHE", "1")
+
+
+def test_grasp_command_writes_contact_outputs(tmp_path):
+    out = tmp_path / "g.json"
+    png = tmp_path / "g.png"
+    code, stdout, err = run(["grasp", GRASP, "--out", str(out), "--plot", str(png)])
+    assert code == 0, err
+    assert "contact force" in stdout and "actuator force" in stdout
+    d = json.loads(out.read_text())
+    assert d["status"] == "converged"
+    c = d["contact"]
+    assert c["normal_force"] > 0 and c["max_penetration"] <= 0.02 * 3.0
+    assert len(c["pressure_front"]["s"]) == len(c["pressure_front"]["q"])
+    assert set(d["reactions"]) == {"front", "back"}
+    assert png.stat().st_size > 10_000
+
+
+def test_grasp_file_errors_name_the_key(tmp_path):
+    text = pathlib.Path(GRASP).read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('kind = "circle"', 'kind = "sphere"'))
+    code, _, err = run(["grasp", str(bad)])
+    assert code == 1 and "objects[0].kind" in err and "Traceback" not in err
+    bad.write_text(text.replace("closing = 6.0", "closing = 6.0\nactuator_force = 1.0"))
+    code, _, err = run(["grasp", str(bad)])
+    assert code == 1 and "exactly one of closing" in err
+    bad.write_text(text.replace("radius = 9.0", "radius = 12.0"))
+    code, _, err = run(["grasp", str(bad)])
+    assert code == 1 and "overlaps the front beam" in err
+    nograsp = tmp_path / "nograsp.toml"
+    nograsp.write_text(text.split("[grasp]")[0])
+    code, _, err = run(["grasp", str(nograsp)])
+    assert code == 1 and "no [grasp] table" in err
+
+
+@pytest.mark.slow
+def test_compare_and_clamp_study(tmp_path):
+    code, stdout, err = run(["compare", "--out", str(tmp_path)])
+    assert code == 0, err
+    assert "paper" in stdout and "+260 %" in stdout
+    d = json.loads((tmp_path / "compare.json").read_text())
+    assert d["modified"]["contact"]["normal_force"] > d["original"]["contact"]["normal_force"]
+    assert set(d["release"]) == {"35.0", "50.0", "65.0"}
+    code, stdout, err = run(["clamp-study", "--out", str(tmp_path)])
+    assert code == 0, err
+    s = json.loads((tmp_path / "clamp_study.json").read_text())
+    assert len(s["best_clamp_length"]) == len(s["diameters"])
