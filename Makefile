@@ -31,3 +31,12 @@ lint: $(STAMP)
 
 clean:
 	rm -rf $(VENV) demo_output .pytest_cache
+
+# Side-by-side with openseespy, PyElastica and a SciPy single-shooting solver (issue 5);
+# needs the bench extra (and the system BLAS/LAPACK for openseespy: see shared/NUMERICS.md).
+.PHONY: bench-peers
+bench-peers: $(STAMP)
+	$(BIN)/python -m pip install -q -e ".[bench]"
+	taskset -c 0 $(BIN)/python benchmarks/peers.py
+	taskset -c 0 $(BIN)/python benchmarks/gradients.py
+	taskset -c 0 $(BIN)/python benchmarks/scaling.py

@@ -17,6 +17,7 @@ import numpy as np
 
 from ._contact import default_stiffness, penalty, smoothing
 from ._finger import BACK, FRONT, Finger, FingerError
+from ._objects import _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import SolverOptions, _direct_core, prepare
@@ -132,7 +133,7 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
         support = support + jnp.insert(jnp.sum(exact - obj_part, axis=0), 1, 0.0)
         q_exact = jnp.where(
-            has_o & (size > tiny), scale * qo[:, 0], jnp.linalg.norm(obj_part, axis=1)
+            has_o & (size > tiny), scale * qo[:, 0], _safe_norm(obj_part)
         )
         normal = normal + jnp.sum(q_exact)
         pressures.append(q_obj)

@@ -1,5 +1,6 @@
-"""Batches of designs: one base finger, many values of named design values, solved by
-`jax.vmap` in fixed-size chunks (sharded over the devices when there are several).
+"""Batches of designs: one base finger, many values of named design values, solved in
+fixed-size chunks by one compiled program each (`jax.vmap` over the designs, or
+`lax.map`; sharded over the devices when there are several).
 
 Every design of a batch shares the base finger's topology (number of crossbeams, order of
 attachments and load points, boundary kinds), so new values never recompile. A design
@@ -9,10 +10,13 @@ and discarded); a design whose solve fails or lies beyond the limit load is flag
 its own status. The solver's loops are bounded, so no member stalls the batch, and
 members never mix: the others come out as if solved alone.
 
-Like `solve_finger` on one finger, each chunk is first solved by Newton at full load
-(vmapped, all members in lock step); only the designs that this does not solve (large
-loads, folds) go on to arc-length continuation, in sub-batches of
-`continuation_chunk_size`, so one hard design does not make a whole chunk continue.
+Like `solve_finger` on one finger, each chunk is first solved by Newton at full load;
+only the designs that this does not solve (large loads, folds) go on to arc-length
+continuation, in sub-batches of `continuation_chunk_size`, so that one hard design does
+not make a whole vmapped chunk (which runs in lock step) continue.
+On CPU the designs of a chunk are by default mapped one after another inside the
+compiled program instead of vmapped: faster there, and safe from a deadlock of jaxlib's
+batched CPU LAPACK kernels (see `_vectorize`).
 """
 
 from __future__ import annotations
@@ -136,20 +140,36 @@ def _pack(sol, finger, outputs, valid):
 _traces = 0  # how often a chunk program was traced (a test checks values never retrace)
 
 
+def _vectorize(stage, mesh, requested: bool | None) -> bool:
+    """vmap the designs of a chunk (True), or `lax.map` over them one after another.
+
+    Default (requested None): vmap on accelerators, map on CPU, where a vmapped chunk was
+    measured about 2x slower per design than one design after another
+    (benchmarks/batch.py). Map is also forced where vmap can hang on CPU: jaxlib 0.10's
+    CPU LAPACK kernels split a batched factorisation over the intra-op thread pool and
+    block until the pieces are done, so two of them at once (both branches of the vmapped
+    `lax.cond` of the continuation stage, or one per device when several CPU devices
+    share the pool) can hold every pool thread. Observed on the 2-core test machine:
+    stacks parked in `jax::ParallelBatchMap`. The direct Newton stage factorises one
+    matrix at a time and may be vmapped on one CPU device.
+    """
+    devices = jax.devices() if mesh is None else list(mesh.devices.flat)
+    if devices[0].platform != "cpu":
+        return True if requested is None else requested
+    return bool(requested) and stage is _direct and mesh is None
+
+
 @eqx.filter_jit
-def _chunk_core(stage, topo, integrator, options, outputs, mesh, base: Finger, values):
+def _chunk_core(stage, topo, integrator, options, outputs, mesh, vectorize, base: Finger, values):
     global _traces
     _traces += 1
     one = functools.partial(stage, topo, integrator, options, outputs)
-    if mesh is None:
-        return jax.vmap(one, in_axes=(None, 0))(base, values)
-    if mesh.devices.flat[0].platform == "cpu":
-        # Several CPU devices (e.g. --xla_force_host_platform_device_count): jaxlib's
-        # batched LAPACK LU waits on the intra-op thread pool the other devices occupy,
-        # which deadlocked on 2 cores; each device maps over its rows instead.
-        fn = lambda b, v: lax.map(lambda x: one(b, x), v)
-    else:
+    if vectorize:
         fn = jax.vmap(one, in_axes=(None, 0))
+    else:
+        fn = lambda b, v: lax.map(lambda x: one(b, x), v)
+    if mesh is None:
+        return fn(base, values)
     # Each device runs its own loops on its rows (no lock step across devices).
     # check_vma=False: the solver's loop carries start replicated and become per-row.
     spec = PartitionSpec(_AXIS)
@@ -212,6 +232,7 @@ def iter_batch(
     topology=None,
     start: int = 0,
     devices=None,
+    vectorize: bool | None = None,
 ) -> Iterator[tuple[int, BatchResult]]:
     """Solve designs start, start + 1, ... chunk by chunk; yield (first index, BatchResult).
 
@@ -237,7 +258,8 @@ def iter_batch(
     def run(stage, opts, rows, n_rows):
         padded = -(-n_rows // n_dev) * n_dev
         chunk = jax.device_put(_pad(arrays, rows, padded, fill), sharding)
-        out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, base_finger, chunk)
+        vec = _vectorize(stage, mesh, vectorize)
+        out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, vec, base_finger, chunk)
         return jax.tree_util.tree_map(np.asarray, out)
 
     for a in range(start, size, chunk_size):
@@ -285,17 +307,21 @@ def solve_batch(
     options: SolverOptions = SolverOptions(),
     topology=None,
     devices=None,
+    vectorize: bool | None = None,
 ) -> BatchResult:
     """Solve many designs of one finger: `values` maps design-value names (see
     `finray_jax.design`) to arrays with one row per design; `outputs` names the scalar
     outputs to return.
 
-    Designs are solved `chunk_size` at a time by `jax.vmap` (bounded memory; one compiled
-    program for every chunk and every set of values), sharded over `devices` (default:
-    all of `jax.devices()`) when there are several; designs whose direct Newton solve
-    fails are continued `continuation_chunk_size` at a time (a second program, compiled
-    on first need). mode: "planar" or "spatial" ("auto" resolves on the base finger).
-    Returns a BatchResult with per-design status.
+    Designs are solved `chunk_size` at a time in one compiled program (bounded memory; the
+    same program for every chunk and every set of values), sharded over `devices`
+    (default: all of `jax.devices()`) when there are several; designs whose direct Newton
+    solve fails are continued `continuation_chunk_size` at a time (a second program,
+    compiled on first need). vectorize: True to `jax.vmap` the designs of a chunk, False
+    to `lax.map` them one after another; None (default) vmaps on accelerators and maps on
+    CPU, where that is faster (see `_vectorize`; on CPU only the direct stage on one
+    device can be vmapped). mode: "planar" or "spatial" ("auto" resolves on the base
+    finger). Returns a BatchResult with per-design status.
     """
     parts = [
         r
@@ -310,6 +336,7 @@ def solve_batch(
             options=options,
             topology=topology,
             devices=devices,
+            vectorize=vectorize,
         )
     ]
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros((0,))

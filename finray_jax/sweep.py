@@ -316,8 +316,12 @@ def _resume(sweep: Sweep, csv_path: str, designs) -> int:
         fields = line.rstrip("\n").split(",")
         if len(fields) != n_cols or fields[0] != str(done):
             break
+        try:
+            inputs = [float(fields[1 + j]) for j in range(len(sweep.names))]
+        except ValueError:
+            break
         for j, name in enumerate(sweep.names):
-            if float(fields[1 + j]) != float(designs[name][done]):
+            if inputs[j] != float(designs[name][done]):
                 raise SweepError(
                     f"{csv_path}: row {done} has {name} = {fields[1 + j]}, but this sweep's "
                     f"design {done} has {_fmt(designs[name][done])}; use another --out"

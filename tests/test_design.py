@@ -1,0 +1,259 @@
+"""Named design values and outputs (finray_jax.design), and gradients of outputs through
+`solve_finger` against central finite differences.
+
+The gradient tests compile the fully traced solve under `jax.jacfwd` and `jax.grad` (about
+1.5 minutes each on one core of the 2-core test machine); both are module fixtures.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import finray_jax as fr
+from finray_jax import design
+
+# ref-A under L1 with both bases clamped over 8 mm (short of the first crossbeam at 15 mm),
+# so that the clamp lengths are interior values and their derivatives are two-sided.
+BASE = design.set_design(
+    fr.ref_finger_a("L1"), {"adaptor.front_clamp_length": 8.0, "adaptor.back_clamp_length": 8.0}
+)
+# "depth" sets every depth; the later "front.depth" then overrides the front one, so both
+# derivatives are non-zero. crossbeams.front_s[3] is not used: it ties with the load point.
+NAMES = [
+    "adaptor.back_clamp_length",
+    "adaptor.front_clamp_length",
+    "crossbeams.front_s[2]",
+    "crossbeams.back_s[4]",
+    "crossbeams.thickness[1]",
+    "crossbeams.angle[3]",
+    "front.thickness",
+    "back.thickness",
+    "depth",
+    "front.depth",
+    "material.E",
+    "tip.x",
+    "tip.z",
+]
+OUTS = ["tip.dx", "reaction.front.fx", "max_strain"]
+
+
+# --------------------------------------------------------------------------------------
+# Names, get and set
+# --------------------------------------------------------------------------------------
+
+
+def test_get_set_round_trip():
+    f = fr.ref_finger_a("L1")
+    g = design.set_design(f, {"crossbeams.thickness[2]": 1.25, "back.thickness": 2.0})
+    got = design.get_design(
+        g, ["crossbeams.thickness", "crossbeams.thickness[2]", "back.thickness"]
+    )
+    np.testing.assert_array_equal(got["crossbeams.thickness"], [1, 1, 1.25, 1, 1, 1, 1])
+    assert float(got["crossbeams.thickness[2]"]) == 1.25
+    assert float(got["back.thickness"]) == 2.0
+    assert float(f.back.thickness) == 1.5  # the original is unchanged
+    g = design.set_design(f, {"depth": 10.0})
+    assert float(g.front.depth) == float(g.back.depth) == 10.0
+    np.testing.assert_array_equal(g.crossbeams.depth, np.full(7, 10.0))
+
+
+def test_crossbeam_angle_moves_the_back_attachment():
+    f = fr.ref_finger_a("L1")
+    # ref-A's crossbeams are horizontal.
+    np.testing.assert_allclose(
+        design.get_design(f, ["crossbeams.angle"])["crossbeams.angle"], 0, atol=1e-14
+    )
+    g = design.set_design(f, {"crossbeams.angle[2]": 0.1})
+    np.testing.assert_array_equal(g.crossbeams.front_s, f.crossbeams.front_s)
+    changed = np.flatnonzero(np.asarray(g.crossbeams.back_s) != np.asarray(f.crossbeams.back_s))
+    assert changed.tolist() == [2]
+    # The back end lies on the back beam (x = 40 (1 - z / 120)) at 0.1 rad above the front end
+    # (0, 45): z = 45 + x tan(0.1).
+    s = float(g.crossbeams.back_s[2])
+    x, z = 40.0 * (1 - s / np.hypot(40, 120) * 1.0), 120.0 * s / np.hypot(40, 120)
+    assert z == pytest.approx(45.0 + x * np.tan(0.1), rel=1e-13)
+    assert float(
+        design.get_design(g, ["crossbeams.angle[2]"])["crossbeams.angle[2]"]
+    ) == pytest.approx(0.1, abs=1e-14)
+    fr.validate_finger(g)
+
+
+def test_crossbeam_angle_on_a_curved_back_beam():
+    f = fr.Finger(
+        material=BASE.material,
+        front_base=BASE.front_base,
+        back_base=BASE.back_base,
+        tip=BASE.tip,
+        front=BASE.front,
+        back=BASE.back,
+        crossbeams=BASE.crossbeams,
+        loads=BASE.loads,
+        back_curvature=0.004,
+    )
+    want = np.linspace(-0.1, 0.1, 7)
+    g = design.set_design(f, {"crossbeams.angle": want})
+    np.testing.assert_allclose(
+        design.get_design(g, ["crossbeams.angle"])["crossbeams.angle"], want, atol=1e-13
+    )
+
+
+def test_angles_are_applied_after_front_s():
+    f = fr.ref_finger_a("L1")
+    g = design.set_design(f, {"crossbeams.angle[2]": 0.05, "crossbeams.front_s[2]": 40.0})
+    assert float(g.crossbeams.front_s[2]) == 40.0
+    assert float(design.crossbeam_angle(g)[2]) == pytest.approx(0.05, abs=1e-14)
+
+
+@pytest.mark.parametrize(
+    "name, match",
+    [
+        (
+            "crossbeams.foo",
+            r"unknown design value 'crossbeams.foo'; valid names: material.E, "
+            r".*crossbeams.angle\[0..6\]",
+        ),
+        (
+            "crossbeams.thickness[7]",
+            r"no crossbeam 7; this finger has 7 crossbeams \(indices 0..6\)",
+        ),
+        ("tip.x[1]", r"'tip.x' takes no index"),
+        ("front thickness", r"unknown design value 'front thickness'"),
+    ],
+)
+def test_unknown_names(name, match):
+    with pytest.raises(design.DesignError, match=match):
+        design.set_design(fr.ref_finger_a("L1"), {name: 1.0})
+
+
+def test_whole_array_names_are_refused_where_scalars_are_needed():
+    with pytest.raises(
+        design.DesignError, match=r"crossbeams.front_s.*array of 7 numbers.*crossbeams.front_s\[0\]"
+    ):
+        design.check_design_names(fr.ref_finger_a("L1"), ["crossbeams.front_s"], scalar=True)
+
+
+def test_design_valid():
+    f = fr.ref_finger_a("L1")
+    topo = fr.topology_of(f, "planar")
+    ok = lambda values: bool(design.design_valid(design.set_design(f, values), topo))
+    assert ok({})
+    assert ok({"adaptor.back_clamp_length": 10.0})
+    assert not ok({"front.thickness": np.nan})
+    assert not ok({"crossbeams.thickness[0]": 0.0})
+    assert not ok({"crossbeams.front_s[2]": 65.0})  # past the load point at 60: new topology
+    assert not ok({"crossbeams.back_s[6]": 130.0})  # beyond the back beam
+    assert not ok({"adaptor.front_clamp_length": -1.0})
+    assert not ok({"material.nu": 0.5})
+
+
+# --------------------------------------------------------------------------------------
+# Outputs
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def l1_solution():
+    return fr.solve_finger(BASE, mode="planar")
+
+
+def test_outputs(l1_solution):
+    sol = l1_solution
+    out = design.evaluate_outputs(
+        sol, BASE, ["tip.dx", "tip.dz", "tip.rotation", "reaction.back.my"]
+    )
+    assert float(out["tip.dx"]) == float(sol.tip.displacement[0])
+    assert float(out["tip.dz"]) == float(sol.tip.displacement[2])
+    assert float(out["tip.rotation"]) == float(sol.tip.rotation[1])
+    assert float(out["reaction.back.my"]) == float(sol.reactions_back.moment[1])
+    with pytest.raises(design.DesignError, match=r"unknown output 'tip.dq'; valid outputs: tip.dx"):
+        design.evaluate_outputs(sol, BASE, ["tip.dq"])
+
+
+def test_max_strain_by_hand(l1_solution):
+    """|n . d3| / (E t d) + |m . d2| (t / 2) / (E d t^3 / 12) over both main beams, outside
+    the 8 mm clamps."""
+    sol, E, t, d = l1_solution, 12.0, 1.5, 20.0
+    worst = 0.0
+    for beam in (sol.front, sol.back):
+        s = np.asarray(beam.s)
+        R = np.asarray(beam.frame)
+        n3 = np.einsum("ni,ni->n", np.asarray(beam.force), R[:, :, 2])
+        m2 = np.einsum("ni,ni->n", np.asarray(beam.moment), R[:, :, 1])
+        eps = np.abs(n3) / (E * t * d) + np.abs(m2) * (t / 2) / (E * d * t**3 / 12)
+        worst = max(worst, float(np.max(eps[s >= 8.0 - 1e-9])))
+    got = design.evaluate_outputs(sol, BASE, ["max_strain"])["max_strain"]
+    assert float(got) == pytest.approx(worst, rel=1e-14)
+    assert 1e-4 < worst < 1e-2  # a soft finger under 0.05 N
+
+
+def test_register_output(l1_solution):
+    design.register_output("test.tip_dx_um", lambda sol, f: 1e3 * sol.tip.displacement[0])
+    try:
+        out = design.evaluate_outputs(l1_solution, BASE, ["test.tip_dx_um"])
+        assert float(out["test.tip_dx_um"]) == pytest.approx(
+            1e3 * float(l1_solution.tip.displacement[0])
+        )
+        with pytest.raises(design.DesignError, match="exists already"):
+            design.register_output("test.tip_dx_um", lambda sol, f: 0.0)
+    finally:
+        design.OUTPUTS.pop("test.tip_dx_um")
+
+
+# --------------------------------------------------------------------------------------
+# Gradients against central finite differences
+# --------------------------------------------------------------------------------------
+
+
+def _outputs(x, topo):
+    finger = design.set_design(BASE, dict(zip(NAMES, x)))
+    sol = fr.solve_finger(finger, mode="planar", topology=topo)
+    out = design.evaluate_outputs(sol, finger, OUTS)
+    return jnp.stack([out[k] for k in OUTS])
+
+
+@pytest.fixture(scope="module")
+def derivatives():
+    topo = fr.topology_of(BASE, "planar")
+    x0 = jnp.stack([jnp.asarray(v) for v in design.get_design(BASE, NAMES).values()])
+    jac = np.asarray(jax.jit(jax.jacfwd(lambda x: _outputs(x, topo)))(x0))
+    grad = jax.jit(jax.grad(lambda x, w: jnp.dot(w, _outputs(x, topo))))
+    rows = np.stack([np.asarray(grad(x0, jnp.eye(len(OUTS))[k])) for k in range(len(OUTS))])
+
+    # Central differences of eager solves. Step 1e-4 relative (1e-4 absolute for values
+    # near 0): truncation ~ h^2 f''' / 6 is ~1e-8 relative; the solves converge to a
+    # residual of ~1e-15, so their noise divided by h is ~1e-11.
+    def eager(x):
+        finger = design.set_design(BASE, dict(zip(NAMES, x)))
+        sol = fr.solve_finger(finger, mode="planar", topology=topo)
+        assert sol.status == "converged"
+        out = design.evaluate_outputs(sol, finger, OUTS)
+        return np.array([float(out[k]) for k in OUTS])
+
+    x0n = np.asarray(x0)
+    fd = np.zeros_like(jac)
+    for i in range(len(NAMES)):
+        h = 1e-4 * max(abs(x0n[i]), 1.0)
+        e = np.zeros_like(x0n)
+        e[i] = h
+        fd[:, i] = (eager(x0n + e) - eager(x0n - e)) / (2 * h)
+    return jac, rows, fd
+
+
+def _rel(a, b):
+    return np.abs(a - b) / np.abs(b)
+
+
+@pytest.mark.parametrize("k", range(len(OUTS)), ids=OUTS)
+def test_jacfwd_matches_finite_differences(derivatives, k):
+    jac, _, fd = derivatives
+    assert np.all(fd[k] != 0.0)
+    err = _rel(jac[k], fd[k])
+    assert np.all(err < 1e-5), dict(zip(NAMES, err))
+
+
+@pytest.mark.parametrize("k", range(len(OUTS)), ids=OUTS)
+def test_grad_matches_finite_differences(derivatives, k):
+    _, rows, fd = derivatives
+    err = _rel(rows[k], fd[k])
+    assert np.all(err < 1e-5), dict(zip(NAMES, err))

@@ -1,0 +1,312 @@
+"""Sweep files and `finray sweep`: the rows written, resuming after an interruption
+without losing or duplicating rows, refusing another sweep's directory, bad input.
+
+All solving tests share one compiled batch program (same value names, outputs and chunk
+size; about 15 s to compile on one core).
+"""
+
+import contextlib
+import io
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+
+from finray_jax import cli
+from finray_jax import io as fio
+from finray_jax import sweep as fsweep
+from finray_jax.batch import solve_batch
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+GRID = """\
+finger = "ref_a.toml"
+outputs = ["tip.dx", "reaction.front.fx", "max_strain"]
+mode = "planar"
+chunk_size = 4
+
+[sampling]
+kind = "grid"
+
+[[design]]
+name = "adaptor.back_clamp_length"
+range = [0.0, 10.0]
+points = 3
+
+[[design]]
+name = "crossbeams.thickness[1]"
+range = [0.8, 1.2]
+points = 2
+"""
+
+
+@pytest.fixture(autouse=True)
+def _no_persistent_cache(monkeypatch):
+    monkeypatch.setenv("FINRAY_NO_CACHE", "1")
+
+
+@pytest.fixture
+def sweep_file(tmp_path):
+    shutil.copy(ROOT / "examples" / "ref_a.toml", tmp_path / "ref_a.toml")
+    path = tmp_path / "grid.toml"
+    path.write_text(GRID)
+    return path
+
+
+def _csv(path):
+    lines = pathlib.Path(path).read_text().splitlines()
+    return lines[0].split(","), [line.split(",") for line in lines[1:]]
+
+
+def run(argv):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The grid's designs solved by solve_batch directly."""
+    tmp = tmp_path_factory.mktemp("ref")
+    shutil.copy(ROOT / "examples" / "ref_a.toml", tmp / "ref_a.toml")
+    (tmp / "grid.toml").write_text(GRID)
+    sw = fsweep.load_sweep(tmp / "grid.toml")
+    return solve_batch(sw.finger, sw.designs(), sw.outputs, chunk_size=sw.chunk_size)
+
+
+# --------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------
+
+
+def test_grid_sweep_writes_one_row_per_design(sweep_file, tmp_path, reference):
+    sw = fsweep.load_sweep(sweep_file)
+    assert sw.size == 6
+    out = tmp_path / "out"
+    result = fsweep.run_sweep(sw, out, progress=None)
+    assert result.finished and result.counts == {"converged": 6}
+    head, rows = _csv(result.csv)
+    assert head == [
+        "index",
+        "adaptor.back_clamp_length",
+        "crossbeams.thickness[1]",
+        "tip.dx",
+        "reaction.front.fx",
+        "max_strain",
+        "status",
+        "iterations",
+        "max_residual",
+    ]
+    assert [r[0] for r in rows] == [str(i) for i in range(6)]
+    # The grid, the last name varying fastest.
+    clamp = [float(r[1]) for r in rows]
+    thick = [float(r[2]) for r in rows]
+    assert clamp == [0.0, 0.0, 5.0, 5.0, 10.0, 10.0]
+    assert thick == [0.8, 1.2] * 3
+    for j, name in enumerate(sw.outputs):
+        np.testing.assert_array_equal([float(r[3 + j]) for r in rows], reference.outputs[name])
+    assert all(r[6] == "converged" and int(r[7]) > 0 and float(r[8]) < 1e-10 for r in rows)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["sweep_hash"] == sw.digest and manifest["finished"] is True
+    assert (out / "sweep.png").stat().st_size > 0
+
+
+def test_interrupted_sweep_resumes_without_losing_or_duplicating_rows(
+    sweep_file, tmp_path, reference
+):
+    sw = fsweep.load_sweep(sweep_file)
+    out = tmp_path / "out"
+
+    def interrupt(done):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        fsweep.run_sweep(sw, out, progress=None, after_chunk=interrupt)
+    _, rows = _csv(out / "results.csv")
+    assert [r[0] for r in rows] == ["0", "1", "2", "3"]  # the first chunk, complete
+    assert not json.loads((out / "manifest.json").read_text())["finished"]
+    # A kill in the middle of a write leaves a torn last line: it is dropped on resume.
+    with open(out / "results.csv", "a") as fh:
+        fh.write("4,10.0,0.8,0.0")
+    result = fsweep.run_sweep(sw, out, progress=None)
+    assert result.finished and result.done == 6
+    _, rows = _csv(out / "results.csv")
+    assert [r[0] for r in rows] == [str(i) for i in range(6)]
+    np.testing.assert_array_equal([float(r[3]) for r in rows], reference.outputs["tip.dx"])
+    # Running a finished sweep again changes nothing.
+    before = (out / "results.csv").read_bytes()
+    assert fsweep.run_sweep(sw, out, progress=None, plot=False).done == 6
+    assert (out / "results.csv").read_bytes() == before
+
+
+def test_max_chunks_and_the_cli(sweep_file, tmp_path):
+    out = tmp_path / "out"
+    code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out), "--max-chunks", "1"])
+    assert code == 0, err
+    assert "4 of 6 designs" in stdout and "run the same command to continue" in stdout
+    assert "sweep [" in err  # the progress line
+    code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out)])
+    assert code == 0, err
+    assert "6 of 6 designs: 6 converged" in stdout
+    assert (out / "sweep.png").exists()
+    _, rows = _csv(out / "results.csv")
+    assert len(rows) == 6
+
+
+def test_another_sweep_in_the_same_directory_is_refused(sweep_file, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    sw = fsweep.load_sweep(sweep_file)
+    (out / "manifest.json").write_text(
+        json.dumps({"sweep_hash": "0" * 64, "sweep_file": "other.toml"})
+    )
+    with pytest.raises(fsweep.SweepError, match=r"holds another sweep \(from other.toml"):
+        fsweep.run_sweep(sw, out, progress=None)
+    other = sweep_file.with_name("other.toml")
+    other.write_text(GRID.replace("points = 3", "points = 4"))
+    code, _, err = run(["sweep", str(other), "--out", str(out)])
+    assert code == 1 and err.startswith("finray: error: ") and "Traceback" not in err
+
+
+# --------------------------------------------------------------------------------------
+# Bad input
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "old, new, match",
+    [
+        (
+            'name = "crossbeams.thickness[1]"',
+            'name = "crossbeams.thicknes[1]"',
+            r"design\[1\].name = \"crossbeams.thicknes\[1\]\": unknown design value "
+            r".*valid names: material.E",
+        ),
+        (
+            'name = "crossbeams.thickness[1]"',
+            'name = "crossbeams.thickness"',
+            r"design\[1\].name = \"crossbeams.thickness\": .*array of 7 numbers",
+        ),
+        (
+            'name = "crossbeams.thickness[1]"',
+            'name = "crossbeams.thickness[9]"',
+            r"design\[1\].name = .*no crossbeam 9",
+        ),
+        (
+            "range = [0.8, 1.2]",
+            "range = [1.2, 0.8]",
+            r"design\[1\].range = \[1.2, 0.8\]: needs lo < hi",
+        ),
+        (
+            "range = [0.8, 1.2]",
+            "range = [0.8]",
+            r"design\[1\].range = \[0.8\]: expected \[lo, hi\]",
+        ),
+        (
+            '"max_strain"]',
+            '"max_stress"]',
+            r"outputs\[2\] = \"max_stress\": unknown output; valid outputs: tip.dx",
+        ),
+        (
+            'outputs = ["tip.dx", "reaction.front.fx", "max_strain"]\n',
+            "",
+            r"outputs: missing required key",
+        ),
+        (
+            'kind = "grid"',
+            'kind = "sobol"',
+            r"sampling.kind = \"sobol\": must be one of \"grid\" \| \"random\"",
+        ),
+        ("points = 2", "", r"design\[1\].points: missing required key"),
+        ("points = 2", "points = 1", r"design\[1\].points = 1: must be an integer >= 2"),
+        (
+            'finger = "ref_a.toml"',
+            'finger = "nope.toml"',
+            r"finger = \"nope.toml\": no such finger file",
+        ),
+        ("chunk_size = 4", "chunk_size = 0", r"chunk_size = 0: must be an integer >= 1"),
+        (
+            "chunk_size = 4",
+            "chunksize = 4",
+            r"chunksize = 4: unknown key at the top level \(did you mean 'chunk_size'\?\)",
+        ),
+        ('kind = "grid"', 'kind = "random"', r"sampling.n: missing required key"),
+    ],
+)
+def test_bad_sweep_files(sweep_file, old, new, match):
+    assert old in GRID
+    sweep_file.write_text(GRID.replace(old, new))
+    with pytest.raises(fsweep.SweepError, match=match):
+        fsweep.load_sweep(sweep_file)
+
+
+def test_bad_sweep_file_in_the_cli(sweep_file, tmp_path):
+    sweep_file.write_text(GRID.replace("range = [0.8, 1.2]", "range = [1.2, 0.8]"))
+    code, stdout, err = run(["sweep", str(sweep_file), "--out", str(tmp_path / "out")])
+    assert code == 1
+    assert err == f"finray: error: {sweep_file}: design[1].range = [1.2, 0.8]: needs lo < hi\n"
+    code, _, err = run(["sweep", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "o")])
+    assert code == 1 and "cannot read the sweep file" in err
+
+
+def test_random_sampling_and_hash():
+    text = GRID.replace('kind = "grid"', 'kind = "random"\nn = 5\nseed = 3').replace(
+        "points = 3\n", ""
+    )
+    text = text.replace("points = 2\n", "")
+    sw = fsweep.loads_sweep(text, source="r.toml", base_dir=str(ROOT / "examples"))
+    d = sw.designs()
+    assert sw.size == 5 and set(d) == {"adaptor.back_clamp_length", "crossbeams.thickness[1]"}
+    assert np.all((d["crossbeams.thickness[1]"] >= 0.8) & (d["crossbeams.thickness[1]"] <= 1.2))
+    again = fsweep.loads_sweep(text, source="r.toml", base_dir=str(ROOT / "examples"))
+    np.testing.assert_array_equal(
+        again.designs()["adaptor.back_clamp_length"], d["adaptor.back_clamp_length"]
+    )
+    assert again.digest == sw.digest
+    other = fsweep.loads_sweep(
+        text.replace("seed = 3", "seed = 4"), source="r.toml", base_dir=str(ROOT / "examples")
+    )
+    assert other.digest != sw.digest
+    # chunk_size only groups rows: the same sweep.
+    same = fsweep.loads_sweep(
+        text.replace("chunk_size = 4", "chunk_size = 2"),
+        source="r.toml",
+        base_dir=str(ROOT / "examples"),
+    )
+    assert same.digest == sw.digest
+    with pytest.raises(fsweep.SweepError, match=r"sampling.n = 0: must be an integer >= 1"):
+        fsweep.loads_sweep(
+            text.replace("n = 5", "n = 0"), source="r.toml", base_dir=str(ROOT / "examples")
+        )
+
+
+def test_sweep_error_is_a_finger_file_error():
+    assert issubclass(fsweep.SweepError, fio.FingerFileError)
+
+
+def test_example_sweep_file():
+    sw = fsweep.load_sweep(ROOT / "examples" / "sweep_clamp.toml")
+    assert sw.names == ("adaptor.back_clamp_length",) and sw.size == 29
+    assert sw.finger_path == str(ROOT / "examples" / "ref_a.toml")
+
+
+@pytest.mark.parametrize("kind", ["line", "heat", "scatter"])
+def test_plots(tmp_path, kind):
+    """The three figure kinds, from made-up rows (no solve)."""
+    base = str(ROOT / "examples")
+    text = GRID
+    if kind == "line":
+        text = text[: text.index('[[design]]\nname = "crossbeams')]
+    elif kind == "scatter":
+        text = text.replace('kind = "grid"', 'kind = "random"\nn = 7').replace("points = 3\n", "")
+        text = text.replace("points = 2\n", "")
+    sw = fsweep.loads_sweep(text, source="s.toml", base_dir=base)
+    data = {k: v for k, v in sw.designs().items()}
+    for j, out in enumerate(sw.outputs):
+        data[out] = np.arange(sw.size, dtype=float) + j
+    data["status"] = np.array(["converged"] * (sw.size - 1) + ["beyond_limit_load"], dtype=object)
+    fsweep.plot_sweep(sw, data, str(tmp_path / "f.png"))
+    assert (tmp_path / "f.png").stat().st_size > 1000
