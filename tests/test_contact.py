@@ -309,3 +309,18 @@ def test_holding_force_grows_with_closing_and_with_friction(finger1):
     g = fr.grasp(finger1, 6.0)
     rough = fr.release_force(g, step=3.0, friction=0.3)
     assert rough.peak > peaks[1]
+
+
+def test_regrasp_derivative_matches_finite_differences(finger1):
+    """d(contact force)/d(closing) by the implicit function theorem (forward mode) against
+    central differences of the same discrete model."""
+    g = fr.grasp(finger1, 6.0)
+
+    def force(d):
+        return fr.regrasp(g, finger1, d)[1].normal_force
+
+    value, slope = jax.jvp(force, (6.0,), (1.0,))
+    h = 1e-4
+    fd = (float(force(6.0 + h)) - float(force(6.0 - h))) / (2 * h)
+    assert float(value) == pytest.approx(float(g.contact.normal_force), rel=1e-8)
+    assert float(slope) == pytest.approx(fd, rel=1e-5)
