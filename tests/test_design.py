@@ -1,8 +1,8 @@
 """Named design values and outputs (finray_jax.design), and gradients of outputs through
 `solve_finger` against central finite differences.
 
-The gradient tests compile the fully traced solve under `jax.jacfwd` and `jax.grad` (about
-1.5 minutes each on one core of the 2-core test machine); both are module fixtures.
+The gradient tests compile the fully traced solve under `jax.jacfwd` and `jax.grad` in one
+module fixture: 1.5-3 minutes on the 2-core test machine, depending on its load.
 """
 
 import jax
