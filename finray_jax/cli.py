@@ -433,8 +433,10 @@ def _cmd_demo(args) -> int:
     from .plot import grasp_figure, save_figure
     from .studies import compare_adaptors
 
-    print("\nGrasping an 18 mm cylinder: original vs modified adaptor (front base pinned, "
-          "back beam clamped over 20 mm, rigid support to 60 mm), same closing of 6 mm")
+    print(
+        "\nGrasping an 18 mm cylinder: original vs modified adaptor (front base pinned, "
+        "back beam clamped over 20 mm, rigid support to 60 mm), same closing of 6 mm"
+    )
     cmp = compare_adaptors(finger, closing=6.0, release_diameters=(), progress=_progress)
     print("\n".join(_comparison_lines(cmp)))
     grasp_png = os.path.join(out, "demo_grasp.png")
