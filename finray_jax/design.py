@@ -11,6 +11,7 @@ Design values (`DESIGN_VALUES`; units mm, MPa, rad):
     front.thickness, back.thickness, front.depth, back.depth
     depth                         every depth: front, back and all crossbeams (reads front)
     adaptor.front_clamp_length, adaptor.back_clamp_length
+    adaptor.support_length        l_s of the modified adaptor (needs a support in the finger)
     tip.x, tip.z                  the shared tip point (attachment arc lengths stay put)
     front.curvature, back.curvature
     crossbeams.front_s, crossbeams.back_s, crossbeams.thickness, crossbeams.depth
@@ -138,6 +139,20 @@ def _set_angle(f: Finger, v) -> Finger:
     return eqx.tree_at(lambda g: g.crossbeams.back_s, f, _back_s_for_angle(f, v))
 
 
+def _support_get(f: Finger):
+    if f.adaptor.support_length is None:
+        raise DesignError(
+            "design value 'adaptor.support_length': this finger's adaptor has no support "
+            "(set adaptor.support_length in the finger first)"
+        )
+    return f.adaptor.support_length
+
+
+def _support_set(f: Finger, v) -> Finger:
+    _support_get(f)
+    return eqx.tree_at(lambda g: g.adaptor.support_length, f, as_float(v))
+
+
 DESIGN_VALUES: dict[str, DesignValue] = {
     "material.E": DesignValue(*_leaf(lambda f: f.material.E)),
     "material.nu": DesignValue(*_leaf(lambda f: f.material.nu)),
@@ -148,6 +163,7 @@ DESIGN_VALUES: dict[str, DesignValue] = {
     "depth": DesignValue(lambda f: f.front.depth, _all_depths),
     "adaptor.front_clamp_length": DesignValue(*_leaf(lambda f: f.adaptor.front_clamp_length)),
     "adaptor.back_clamp_length": DesignValue(*_leaf(lambda f: f.adaptor.back_clamp_length)),
+    "adaptor.support_length": DesignValue(_support_get, _support_set),
     "tip.x": DesignValue(*_tip(0)),
     "tip.z": DesignValue(*_tip(1)),
     "front.curvature": DesignValue(*_leaf(lambda f: f.front_curvature)),
