@@ -110,6 +110,7 @@ class AbstractRodModel(eqx.Module):
     n_full: ClassVar[int]  # integrated state size
     n_stiff: ClassVar[int]  # stiffness entries per sample
     n_head: ClassVar[int]  # parameters before the stiffness samples
+    rotation_slice: ClassVar[slice]  # the rotation part of a segment's unknowns
 
     def split(self, q):
         """(stiffness samples, contact columns) of a parameter row."""
@@ -138,6 +139,7 @@ class PlanarRod(AbstractRodModel):
     n_full: ClassVar[int] = 6
     n_stiff: ClassVar[int] = 3
     n_head: ClassVar[int] = 5
+    rotation_slice: ClassVar[slice] = slice(2, 3)
 
     def pack(self, table):
         head = jnp.stack(
@@ -262,6 +264,7 @@ class SpatialRod(AbstractRodModel):
     n_full: ClassVar[int] = 18
     n_stiff: ClassVar[int] = 6
     n_head: ClassVar[int] = 8
+    rotation_slice: ClassVar[slice] = slice(3, 6)
 
     def pack(self, table):
         head = [table.length[:, None], table.rigid[:, None], table.force, table.precurvature]

@@ -42,6 +42,10 @@ class SolverOptions(eqx.Module):
         tangent turns by more than arccos of this (guards against jumping over folds).
     max_corrector_steps: a continuation step whose corrector needs more Newton iterations
         is retried at half length.
+    max_rotation_step: the largest rotation (rad) of any segment's start frame in one
+        Newton step; longer steps are scaled down (None: plain Newton). With 0.2, ref-A's
+        L2 and L3 are solved directly from the undeformed shape in 16 and 10 iterations
+        instead of by 35 and 30 iterations of continuation.
     """
 
     rtol: float = eqx.field(static=True, default=1e-10)
@@ -54,12 +58,19 @@ class SolverOptions(eqx.Module):
     max_continuation_steps: int = eqx.field(static=True, default=120)
     min_tangent_cosine: float = eqx.field(static=True, default=0.95)
     max_corrector_steps: int = eqx.field(static=True, default=8)
+    max_rotation_step: float | None = eqx.field(static=True, default=0.2)
 
     def __check_init__(self):
         for name in ("rtol", "atol", "initial_arc_step", "min_arc_step", "max_arc_step"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise ValueError(f"SolverOptions.{name} must be a positive number, got {v!r}")
+        cap = self.max_rotation_step
+        if cap is not None and not (isinstance(cap, (int, float)) and cap > 0):
+            raise ValueError(
+                f"SolverOptions.max_rotation_step must be None or a positive angle (rad), "
+                f"got {cap!r}"
+            )
         for name in ("max_newton_steps", "max_continuation_steps", "max_corrector_steps"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
@@ -100,6 +111,16 @@ class _Newton(eqx.Module):
     ok: jax.Array
     sign_first: jax.Array
     sign: jax.Array
+
+
+def _cap_rotation(problem, dy, cap):
+    """Scale a Newton step so that no segment's start frame turns by more than `cap` rad.
+
+    Plain Newton from the undeformed shape overshoots large rotations (the residual is
+    trigonometric in them) and diverges for loads well below the limit load; limiting the
+    rotation part of the step keeps it in the region where the linearisation holds."""
+    rot = dy.reshape(problem.table.length.shape[0], -1)[:, problem.model.rotation_slice]
+    return dy * jnp.minimum(1.0, cap / jnp.maximum(jnp.max(jnp.abs(rot)), 1e-300))
 
 
 def _backtrack(problem, lam, y, dy, r, max_halvings=12):
@@ -144,6 +165,8 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
         dy = jax.scipy.linalg.lu_solve((lu, piv), r)
         if line_search:
             dy = _backtrack(problem, lam, st.y, dy, r)
+        if options.max_rotation_step is not None:
+            dy = _cap_rotation(problem, dy, options.max_rotation_step)
         y = st.y - dy
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))

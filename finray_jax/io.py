@@ -886,6 +886,8 @@ def _settings_toml(settings: SolveSettings) -> list[str]:
         out.append(f"backend = {_ts(integ.backend)}")
     for f in _solver_option_fields():
         v = getattr(settings.options, f.name)
+        if v is None:  # an option switched off (max_rotation_step) is not written
+            continue
         if isinstance(f.default, bool):
             out.append(f"{f.name} = {'true' if v else 'false'}")
         elif isinstance(f.default, int):

@@ -524,3 +524,36 @@ def test_curvature_rules():
     )
     with pytest.raises(fr.FingerError, match="back_clamp_length = 10.0"):
         fr.validate_finger(clamped)
+
+
+@pytest.mark.parametrize("case", ["L2", "L3"])
+def test_large_loads_are_solved_by_direct_newton(case, request):
+    """With the rotation cap (default 0.2 rad per Newton step), L2 and L3 converge by
+    Newton from the undeformed shape (at most max_newton_steps iterations: no continuation
+    was needed); that they are the right equilibria is checked against openseespy in
+    test_reference_opensees.py."""
+    sol = request.getfixturevalue(CASES[case])
+    assert sol.result == fr.RESULTS.successful
+    assert int(sol.iterations) <= _solve.SolverOptions().max_newton_steps
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["L2", "L3"])
+def test_rotation_capped_newton_matches_the_continuation(case):
+    """Capped Newton lands on the loading branch: the continuation's equilibrium, where
+    plain Newton from the undeformed shape diverges."""
+    finger = _ref(case)
+    topo = fr.topology_of(finger, "planar")
+    direct, ok = _solve._direct_core(topo, fr.Integrator(), _solve.SolverOptions(), finger, None)
+    assert bool(ok) and direct.result == fr.RESULTS.successful
+    plain = _solve.SolverOptions(max_rotation_step=None)
+    _, plain_ok = _solve._direct_core(topo, fr.Integrator(), plain, finger, None)
+    assert not bool(plain_ok)
+    cont = fr.solve_finger(finger, mode="planar", options=_solve.SolverOptions(direct_first=False))
+    assert int(direct.iterations) < int(cont.iterations)
+    np.testing.assert_allclose(direct.unknowns, cont.unknowns, rtol=0, atol=1e-8)
+
+
+def test_rotation_cap_must_be_positive():
+    with pytest.raises(ValueError, match="max_rotation_step must be None or a positive"):
+        fr.SolverOptions(max_rotation_step=0.0)
