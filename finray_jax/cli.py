@@ -1,4 +1,4 @@
-"""The `finray` command line: solve, limit, validate, demo and sweep. See docs/cli.md.
+"""The `finray` command line: solve, limit, validate, demo, sweep and optimize. See docs/cli.md.
 
 Exit codes: 0 converged (or limit found, or file valid), 1 user error (bad or missing
 file, bad option), 2 the load lies beyond the finger's limit load, 3 the solve failed.
@@ -231,6 +231,25 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("sweep", metavar="SWEEP.toml")
     sw.add_argument("--out", metavar="DIR", required=True, help="output directory")
     sw.add_argument("--max-chunks", type=int, default=None, metavar="N", help="stop after N chunks")
+
+    op = sub.add_parser(
+        "optimize",
+        help="optimise design values for the contact or holding force (docs/optimize-format.md)",
+        description="Maximise the contact force or the holding force of a grasp over design "
+        "values of a finger (gradients by the implicit function theorem, optax), under "
+        "bounds and constraints. Writes DIR/progress.csv (one row per iteration), "
+        "DIR/best.toml (the best feasible design), DIR/result.json, DIR/design.png and "
+        "DIR/convergence.png. Re-running the same file into DIR continues where it stopped.",
+    )
+    op.add_argument("optimize", metavar="OPT.toml")
+    op.add_argument("--out", metavar="DIR", required=True, help="output directory")
+    op.add_argument(
+        "--max-iterations",
+        type=int,
+        default=None,
+        metavar="N",
+        help="stop after N more iterations (run again to continue)",
+    )
     return p
 
 
@@ -474,6 +493,56 @@ def _cmd_sweep(args) -> int:
     return EXIT_OK
 
 
+def _cmd_optimize(args) -> int:
+    from . import optimizer as fopt
+
+    if args.max_iterations is not None and args.max_iterations < 1:
+        raise UserError(f"--max-iterations must be a positive integer, got {args.max_iterations}")
+    pr = fopt.load_optimize(args.optimize)
+    cons = ", ".join(f"{k} = {v:g}" for k, v in pr.constraints.items()) or "none"
+    objects = (
+        "its object"
+        if pr.diameters is None
+        else (f"cylinders of {', '.join(f'{d:g}' for d in pr.diameters)} mm ({pr.aggregate})")
+    )
+    print(
+        f"optimize {args.optimize}: maximise {pr.objective} of {pr.finger_path} on {objects} "
+        f"at closing {pr.closing:g} mm over {', '.join(pr.names)}; constraints: {cons}; "
+        f"{pr.optimizer}, learning rate {pr.learning_rate:g}, {pr.iterations} iterations"
+    )
+    try:
+        run = fopt.run_optimize(
+            pr, args.out, max_iterations=args.max_iterations, progress=sys.stderr
+        )
+    except KeyboardInterrupt:
+        print(
+            f"finray: interrupted; finished iterations are in {args.out}: run the same command "
+            "to continue",
+            file=sys.stderr,
+        )
+        return 130
+    print(f"{run.reason}; {run.rows} iterations in {run.csv}")
+    if run.best is None:
+        print("no feasible design yet")
+    else:
+        b = run.best
+        gain = 100.0 * (b["objective"] / run.initial_objective - 1.0)
+        print(
+            f"best (iteration {b['iteration']}): {pr.objective} {_f(b['objective'], 6)} N "
+            f"({gain:+.1f} % on the initial {_f(run.initial_objective, 6)} N)"
+        )
+        for name, v in b["design"].items():
+            print(f"  {name} = {_f(v, 6)}")
+        for name, m in b["margins"].items():
+            print(f"  margin {name}: {_f(m, 4)}")
+        print(f"wrote {run.best_toml}")
+    for path in run.figures:
+        print(f"wrote {path}")
+    if not run.finished:
+        print("not finished: run the same command to continue")
+    return EXIT_OK
+
+
 def _progress(msg):
     print(f"  ... {msg}", file=sys.stderr, flush=True)
 
@@ -693,6 +762,7 @@ COMMANDS = {
     "validate": _cmd_validate,
     "demo": _cmd_demo,
     "sweep": _cmd_sweep,
+    "optimize": _cmd_optimize,
 }
 
 
