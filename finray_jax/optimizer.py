@@ -834,7 +834,9 @@ def run_optimize(
     else:
         state = ck["state"]
         _truncate_rows(csv_path, header, state["rows"])
-    setup.data = eqx.tree_at(lambda d: d.objective_scale, setup.data, jnp.asarray(state["scale"], jnp.float64))
+    setup.data = eqx.tree_at(
+        lambda d: d.objective_scale, setup.data, jnp.asarray(state["scale"], jnp.float64)
+    )
     z = jnp.asarray(state["z"], jnp.float64)
     anchors = _anchors_from(state["anchors"])
     opt_state = opt.init(z)

@@ -11,7 +11,6 @@ import pathlib
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 import finray_jax as fr
 from finray_jax import io as fio

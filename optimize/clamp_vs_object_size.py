@@ -99,8 +99,10 @@ def main(argv=None) -> int:
     # at l_c = 20 mm, times 1.5 (headroom for the stiffer designs).
     g = fr.grasp(base_for(diameters[0]), args.closing)
     k = 1.5 * float(g.stiffness)
-    print(f"contact penalty stiffness fixed at {k:.1f} N/mm^2; closing {args.closing} mm, "
-          f"support to l_s = {ls} mm, l_c in [{lo}, {hi}] mm")
+    print(
+        f"contact penalty stiffness fixed at {k:.1f} N/mm^2; closing {args.closing} mm, "
+        f"support to l_s = {ls} mm, l_c in [{lo}, {hi}] mm"
+    )
     ev = cm.ContactForce(set_clamp, args.closing)
 
     rows, record = [], []
@@ -129,29 +131,52 @@ def main(argv=None) -> int:
         )
         rows.append(row)
         record.append(dict(diameter_mm=d, iterations=log, scan_force_N=scan_f.tolist()))
-        print(f"{d:g} mm: gradient l_c = {best['x']:.2f} mm, F = {best['force']:.4f} N "
-              f"({len(log)} evaluations, {t_grad:.0f} s); scan best l_c = {scan[j]:.2f} mm, "
-              f"F = {scan_f[j]:.4f} N ({t_scan:.0f} s)", flush=True)
+        print(
+            f"{d:g} mm: gradient l_c = {best['x']:.2f} mm, F = {best['force']:.4f} N "
+            f"({len(log)} evaluations, {t_grad:.0f} s); scan best l_c = {scan[j]:.2f} mm, "
+            f"F = {scan_f[j]:.4f} N ({t_scan:.0f} s)",
+            flush=True,
+        )
         x_start = best["x"]
 
     print()
-    cm.print_table(rows, {
-        "diameter_mm": "{:.0f}", "lc_gradient_mm": "{:.2f}", "force_gradient_N": "{:.4f}",
-        "slope_at_optimum_N_per_mm": "{:+.4f}", "evaluations": "{:d}", "lc_scan_mm": "{:.2f}",
-        "force_scan_N": "{:.4f}", "gain_over_scan_N": "{:+.2e}",
-        "max_penetration_mm": "{:.4f}",
-    })
+    cm.print_table(
+        rows,
+        {
+            "diameter_mm": "{:.0f}",
+            "lc_gradient_mm": "{:.2f}",
+            "force_gradient_N": "{:.4f}",
+            "slope_at_optimum_N_per_mm": "{:+.4f}",
+            "evaluations": "{:d}",
+            "lc_scan_mm": "{:.2f}",
+            "force_scan_N": "{:.4f}",
+            "gain_over_scan_N": "{:+.2e}",
+            "max_penetration_mm": "{:.4f}",
+        },
+    )
     cm.write_csv(out / "clamp_vs_object_size.csv", rows)
-    cm.write_json(out / "clamp_vs_object_size.json", dict(
-        finger="examples/finger1.toml", closing_mm=args.closing, support_length_mm=ls,
-        clamp_bounds_mm=[lo, hi], penalty_stiffness=k, quick=args.quick,
-        scan_clamp_lengths_mm=scan.tolist(), diameters=record, rows=rows,
-        grasps_from_scratch=ev.grasps, regrasp_solves=ev.solves,
-        seconds=time.perf_counter() - t_start,
-    ))
+    cm.write_json(
+        out / "clamp_vs_object_size.json",
+        dict(
+            finger="examples/finger1.toml",
+            closing_mm=args.closing,
+            support_length_mm=ls,
+            clamp_bounds_mm=[lo, hi],
+            penalty_stiffness=k,
+            quick=args.quick,
+            scan_clamp_lengths_mm=scan.tolist(),
+            diameters=record,
+            rows=rows,
+            grasps_from_scratch=ev.grasps,
+            regrasp_solves=ev.solves,
+            seconds=time.perf_counter() - t_start,
+        ),
+    )
     _plot(out / "clamp_vs_object_size.png", scan, record, rows)
-    print(f"\nwrote {out}/clamp_vs_object_size.csv, .json, .png "
-          f"({time.perf_counter() - t_start:.0f} s)")
+    print(
+        f"\nwrote {out}/clamp_vs_object_size.csv, .json, .png "
+        f"({time.perf_counter() - t_start:.0f} s)"
+    )
     return 0
 
 
@@ -161,10 +186,17 @@ def _plot(path, scan, record, rows):
     fig = Figure(figsize=(11, 4.2), layout="constrained")
     ax, ax2 = fig.subplots(1, 2)
     for rec, row in zip(record, rows):
-        line = ax.plot(scan, rec["scan_force_N"], marker="o", ms=3,
-                       label=f"{rec['diameter_mm']:g} mm")[0]
-        ax.plot([row["lc_gradient_mm"]], [row["force_gradient_N"]], marker="*", ms=13,
-                color=line.get_color(), mec="k")
+        line = ax.plot(
+            scan, rec["scan_force_N"], marker="o", ms=3, label=f"{rec['diameter_mm']:g} mm"
+        )[0]
+        ax.plot(
+            [row["lc_gradient_mm"]],
+            [row["force_gradient_N"]],
+            marker="*",
+            ms=13,
+            color=line.get_color(),
+            mec="k",
+        )
     ax.set_xlabel("back-beam clamp length l_c (mm)")
     ax.set_ylabel("contact force (N)")
     ax.set_title("scan (lines) and gradient optimum (stars)")
@@ -172,8 +204,9 @@ def _plot(path, scan, record, rows):
     ax.legend(fontsize="small", title="object")
     d = [r["diameter_mm"] for r in rows]
     ax2.plot(d, [r["lc_scan_mm"] for r in rows], marker="s", label="coarse scan")
-    ax2.plot(d, [r["lc_gradient_mm"] for r in rows], marker="*", ms=10, ls="--",
-             label="gradient ascent")
+    ax2.plot(
+        d, [r["lc_gradient_mm"] for r in rows], marker="*", ms=10, ls="--", label="gradient ascent"
+    )
     ax2.set_xlabel("object diameter (mm)")
     ax2.set_ylabel("best l_c (mm)")
     ax2.grid(True, lw=0.4, alpha=0.5)

@@ -79,36 +79,60 @@ def main(argv=None) -> int:
             if a_deg == 0.0:
                 h = 1e-4  # rad
                 fd = (ev(base, a + h, ref)[0] - ev(base, a - h, ref)[0]) / (2 * h)
-            rows.append(dict(
-                count=n,
-                angle_deg=a_deg,
-                contact_force_N=f,
-                dF_dangle_N_per_rad=df,
-                dF_dangle_fd_N_per_rad=fd,
-                tip_dx_mm=float(dx),
-                tip_stiffness_N_per_mm=LOAD_N / float(dx),
-                fig3_status=str(status),
-                max_penetration_mm=pen,
-            ))
-        print(f"{n} crossbeams: {len(angles)} angles in {time.perf_counter() - t0:.0f} s "
-              "(compile included)", flush=True)
+            rows.append(
+                dict(
+                    count=n,
+                    angle_deg=a_deg,
+                    contact_force_N=f,
+                    dF_dangle_N_per_rad=df,
+                    dF_dangle_fd_N_per_rad=fd,
+                    tip_dx_mm=float(dx),
+                    tip_stiffness_N_per_mm=LOAD_N / float(dx),
+                    fig3_status=str(status),
+                    max_penetration_mm=pen,
+                )
+            )
+        print(
+            f"{n} crossbeams: {len(angles)} angles in {time.perf_counter() - t0:.0f} s "
+            "(compile included)",
+            flush=True,
+        )
 
     print()
-    cm.print_table(rows, {
-        "count": "{:d}", "angle_deg": "{:+.1f}", "contact_force_N": "{:.4f}",
-        "dF_dangle_N_per_rad": "{:+.4f}", "dF_dangle_fd_N_per_rad": "{:+.4f}",
-        "tip_dx_mm": "{:.3f}", "tip_stiffness_N_per_mm": "{:.4f}",
-        "max_penetration_mm": "{:.4f}",
-    })
+    cm.print_table(
+        rows,
+        {
+            "count": "{:d}",
+            "angle_deg": "{:+.1f}",
+            "contact_force_N": "{:.4f}",
+            "dF_dangle_N_per_rad": "{:+.4f}",
+            "dF_dangle_fd_N_per_rad": "{:+.4f}",
+            "tip_dx_mm": "{:.3f}",
+            "tip_stiffness_N_per_mm": "{:.4f}",
+            "max_penetration_mm": "{:.4f}",
+        },
+    )
     cm.write_csv(out / "crossbeam_count_angle.csv", rows)
-    cm.write_json(out / "crossbeam_count_angle.json", dict(
-        finger="examples/finger1.toml", object_diameter_mm=18.0, closing_mm=args.closing,
-        fig3_load_N=LOAD_N, penalty_stiffness=k, counts=counts, angles_deg=angles_deg,
-        quick=args.quick, rows=rows, seconds=time.perf_counter() - t_start,
-    ))
+    cm.write_json(
+        out / "crossbeam_count_angle.json",
+        dict(
+            finger="examples/finger1.toml",
+            object_diameter_mm=18.0,
+            closing_mm=args.closing,
+            fig3_load_N=LOAD_N,
+            penalty_stiffness=k,
+            counts=counts,
+            angles_deg=angles_deg,
+            quick=args.quick,
+            rows=rows,
+            seconds=time.perf_counter() - t_start,
+        ),
+    )
     _plot(out / "crossbeam_count_angle.png", rows, counts, angles_deg)
-    print(f"\nwrote {out}/crossbeam_count_angle.csv, .json, .png "
-          f"({time.perf_counter() - t_start:.0f} s)")
+    print(
+        f"\nwrote {out}/crossbeam_count_angle.csv, .json, .png "
+        f"({time.perf_counter() - t_start:.0f} s)"
+    )
     return 0
 
 
@@ -124,11 +148,17 @@ def _plot(path, rows, counts, angles_deg):
         s = np.array([x["dF_dangle_N_per_rad"] for x in r]) * np.pi / 180.0
         line = axes[0].plot(a, f, marker="o", label=f"{n}")[0]
         for ai, fi, si in zip(a, f, s):  # the gradient as a short tangent
-            axes[0].plot([ai - 2, ai + 2], [fi - 2 * si, fi + 2 * si], color=line.get_color(),
-                         lw=3, alpha=0.4)
+            axes[0].plot(
+                [ai - 2, ai + 2],
+                [fi - 2 * si, fi + 2 * si],
+                color=line.get_color(),
+                lw=3,
+                alpha=0.4,
+            )
         axes[1].plot(a, s, marker="o", color=line.get_color())
-        axes[2].plot(a, [x["tip_stiffness_N_per_mm"] for x in r], marker="o",
-                     color=line.get_color())
+        axes[2].plot(
+            a, [x["tip_stiffness_N_per_mm"] for x in r], marker="o", color=line.get_color()
+        )
     axes[0].set_ylabel("contact force, 18 mm object (N)")
     axes[0].legend(title="crossbeams", fontsize="small")
     axes[1].set_ylabel("dF/d(angle) (N/deg)")

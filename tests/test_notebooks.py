@@ -1,7 +1,6 @@
 """The notebooks in notebooks/ run top to bottom in a fresh kernel (quick mode), so they
 cannot rot, and are stored without outputs."""
 
-import os
 import pathlib
 
 import pytest
@@ -12,6 +11,10 @@ pytest.importorskip("ipykernel")
 
 NOTEBOOKS = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
 PATHS = sorted(NOTEBOOKS.glob("*.ipynb"))
+# Notebooks that take several minutes even in quick mode (two grasp topologies to
+# compile, differentiated grasps): run with --runslow.
+SLOW = {"02_adaptors_and_clamp_study", "03_design_optimisation"}
+RUNS = [pytest.param(p, marks=[pytest.mark.slow] if p.stem in SLOW else []) for p in PATHS]
 
 # Text each notebook must print: the headline results of its story.
 EXPECTED = {
@@ -38,7 +41,7 @@ def test_notebook_is_stored_clean(path):
             assert cell.outputs == [] and cell.execution_count is None, "strip the outputs"
 
 
-@pytest.mark.parametrize("path", PATHS, ids=[p.stem for p in PATHS])
+@pytest.mark.parametrize("path", RUNS, ids=[p.stem for p in PATHS])
 def test_notebook_runs(path, monkeypatch):
     monkeypatch.setenv("FINRAY_QUICK", "1")
     monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
