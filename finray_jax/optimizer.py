@@ -839,7 +839,8 @@ def run_optimize(
     )
     z = jnp.asarray(state["z"], jnp.float64)
     anchors = _anchors_from(state["anchors"])
-    opt_state = opt.init(z)
+    with jax.numpy_dtype_promotion("standard"):
+        opt_state = opt.init(z)
     if state["opt_state"] is not None:
         leaves, tree = jax.tree_util.tree_flatten(opt_state)
         opt_state = jax.tree_util.tree_unflatten(
@@ -901,7 +902,8 @@ def run_optimize(
         small = last is not None and abs(objective - last) <= problem.tolerance * abs(objective)
         state["stall"] = state["stall"] + 1 if (small and feasible) else 0
         state["last"] = objective
-        updates, opt_state = opt.update(grad, opt_state, z)
+        with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 counts and floats
+            updates, opt_state = opt.update(grad, opt_state, z)
         step = jnp.asarray(updates)
         z_prev = z
         with open(csv_path, "a", encoding="utf-8") as fh:

@@ -68,7 +68,11 @@ class ContactForce:
     def __init__(self, setter, closing: float = CLOSING):
         self.setter = setter
         self.closing = closing
-        self.template = None  # the first GraspSolution: fixes the static fields
+        # the first GraspSolution of each topology: fixes the static fields. (The contact
+        # problem's subdivision of the beams depends on the attachment points, so a
+        # design value such as a crossbeam angle can change the topology of a fresh
+        # grasp.)
+        self.templates = {}
         self.grasps = 0
         self.solves = 0
 
@@ -77,12 +81,11 @@ class ContactForce:
         g = fr.grasp(self.setter(base, jnp.asarray(float(x))), self.closing, stiffen=False)
         if not g.converged:
             raise RuntimeError(f"grasp failed at x = {x}: {g.status}")
-        if self.template is None:
-            self.template = g
+        template = self.templates.setdefault(g.topology, g)
         # same static fields as the template: the compiled regrasp is reused
         return eqx.tree_at(
             lambda r: (r.solution, r.closing, r.stiffness),
-            self.template,
+            template,
             (g.solution, g.closing, g.stiffness),
         )
 
