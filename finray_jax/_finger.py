@@ -326,8 +326,10 @@ def validate_finger(finger: Finger) -> None:
                 "of the clamp)"
             )
         if float(_num(finger.back_curvature)) != 0.0:
-            raise FingerError("adaptor.support_length needs a straight back beam "
-                              f"(back_curvature = {float(_num(finger.back_curvature))})")
+            raise FingerError(
+                "adaptor.support_length needs a straight back beam "
+                f"(back_curvature = {float(_num(finger.back_curvature))})"
+            )
     _validate_contact(finger)
 
     lengths = [lf, lb, *crossbeam_lengths(finger).tolist()]
@@ -376,8 +378,10 @@ def _validate_contact(finger: Finger) -> None:
         _positive("contact.stiffness", _shaped("contact.stiffness", c.stiffness, ()))
     mp = float(_finite("contact.max_penetration", c.max_penetration))
     if not 0.0 < mp < 0.5:
-        raise FingerError(f"contact.max_penetration must lie in (0, 0.5) (a fraction of the "
-                          f"front beam's thickness), got {mp}")
+        raise FingerError(
+            f"contact.max_penetration must lie in (0, 0.5) (a fraction of the "
+            f"front beam's thickness), got {mp}"
+        )
     mu = float(_finite("contact.friction", c.friction))
     if mu < 0:
         raise FingerError(f"contact.friction must be non-negative, got {mu}")
@@ -416,8 +420,10 @@ def _validate_object(where: str, obj) -> None:
         half = _positive(f"{where}.half_size", _shaped(f"{where}.half_size", obj.half_size, (2,)))
         r = float(_finite(f"{where}.corner_radius", obj.corner_radius))
         if not 0.0 <= r <= float(np.min(half)):
-            raise FingerError(f"{where}.corner_radius must lie in [0, {float(np.min(half))}] "
-                              f"(the smaller half size), got {r}")
+            raise FingerError(
+                f"{where}.corner_radius must lie in [0, {float(np.min(half))}] "
+                f"(the smaller half size), got {r}"
+            )
         _finite(f"{where}.angle", obj.angle)
     elif kind == "polygon":
         v = _finite(f"{where}.vertices", obj.vertices)
@@ -426,8 +432,10 @@ def _validate_object(where: str, obj) -> None:
         e = np.roll(v, -1, axis=0) - v
         turn = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
         if np.any(turn <= 0):
-            raise FingerError(f"{where}.vertices must form a convex polygon listed counter-"
-                              f"clockwise (x right, z up), got {v.tolist()}")
+            raise FingerError(
+                f"{where}.vertices must form a convex polygon listed counter-"
+                f"clockwise (x right, z up), got {v.tolist()}"
+            )
         r = float(_finite(f"{where}.corner_radius", obj.corner_radius))
         if r < 0:
             raise FingerError(f"{where}.corner_radius must be non-negative, got {r}")

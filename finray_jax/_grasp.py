@@ -118,13 +118,14 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         exact = -(n_b[:, -1] - n_b[:, 0]) - dist
         so, ss, qo = (_blocks_integral(x, s_b, sol.steps) for x in (f_obj, f_sup, q_obj[:, None]))
         sampled = so + ss
-        tiny = 1e-24 * jnp.maximum(jnp.sum(exact * exact, axis=1), 1e-300)
+        # (the floor keeps tiny a normal number, and the division never sees 0 / 0 even
+        # in the unselected branch, so reverse-mode gradients stay finite)
+        tiny = 1e-24 * jnp.maximum(jnp.sum(exact * exact, axis=1), 1e-280)
         size = jnp.sum(sampled * sampled, axis=1)
         has_o = jnp.sum(so * so, axis=1) > tiny
         has_s = jnp.sum(ss * ss, axis=1) > tiny
-        scale = jnp.where(
-            size > tiny, jnp.sum(exact * sampled, axis=1) / jnp.maximum(size, tiny), 1.0
-        )
+        some = size > tiny
+        scale = jnp.where(some, jnp.sum(exact * sampled, axis=1) / jnp.where(some, size, 1.0), 1.0)
         # all of the segment's contact force goes to what touches it; if both do, split
         # by the sampled shares
         obj_part = jnp.where(
@@ -132,9 +133,7 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         )
         force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
         support = support + jnp.insert(jnp.sum(exact - obj_part, axis=0), 1, 0.0)
-        q_exact = jnp.where(
-            has_o & (size > tiny), scale * qo[:, 0], _safe_norm(obj_part)
-        )
+        q_exact = jnp.where(has_o & some, scale * qo[:, 0], _safe_norm(obj_part))
         normal = normal + jnp.sum(q_exact)
         pressures.append(q_obj)
     reactions = sol.reactions_front.force + sol.reactions_back.force + support

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import hashlib
 import json
 import math
 import os
@@ -703,16 +704,67 @@ def load_finger(path) -> tuple[Finger, SolveSettings]:
     Raises FingerFileError (a ValueError) naming the file, the key and the bad value.
     """
     path = os.fspath(path)
+    text = _read_text(path, "finger", FingerFileError)
+    return loads_finger(text, source=path)
+
+
+# --------------------------------------------------------------------------------------
+# Study files (sweeps, optimisations) that name a base finger file
+# --------------------------------------------------------------------------------------
+
+
+def _read_text(path, what: str, error: type[FingerFileError]) -> str:
     try:
         with open(path, "rb") as fh:
             raw = fh.read()
     except OSError as e:
-        raise FingerFileError(f"{path}: cannot read the finger file: {e.strerror}") from None
+        raise error(f"{path}: cannot read the {what} file: {e.strerror}") from None
     try:
-        text = raw.decode("utf-8")
+        return raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise FingerFileError(f"{path}: not UTF-8 text: {e}") from None
-    return loads_finger(text, source=path)
+        raise error(f"{path}: not UTF-8 text: {e}") from None
+
+
+def _loads_study(text: str, parse, error: type[FingerFileError], source: str, base_dir: str):
+    """Parse a study file's TOML with `parse(doc, reader, source, base_dir)`; every
+    FingerFileError (its own or its base finger's) comes out as `error`."""
+    r = _Reader(source)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise error(f"{source}: not valid TOML: {e}") from None
+    try:
+        return parse(doc, r, source, base_dir)
+    except error:
+        raise
+    except FingerFileError as e:
+        raise error(str(e)) from None
+
+
+def _load_study(path, loads, what: str, error: type[FingerFileError]):
+    path = os.fspath(path)
+    text = _read_text(path, what, error)
+    return loads(text, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def _require(r: _Reader, table: dict, path: str, keys, hints: dict) -> None:
+    for key in keys:
+        if key not in table:
+            full = f"{path}.{key}" if path else key
+            raise r.error(full, "missing required key" + hints.get(key, ""))
+
+
+def _base_finger(doc: dict, r: _Reader, base_dir: str):
+    """The finger file a study names (key `finger`, relative to the study file):
+    (finger, settings, normalised path, sha256 of its bytes)."""
+    rel = r.string(doc["finger"], "finger")
+    path = os.path.normpath(os.path.join(base_dir, rel))
+    if not os.path.isfile(path):
+        raise r.error("finger", f"no such finger file: {path}", rel)
+    finger, settings = load_finger(path)
+    with open(path, "rb") as fh:
+        digest = hashlib.sha256(fh.read()).hexdigest()
+    return finger, settings, path, digest
 
 
 # --------------------------------------------------------------------------------------

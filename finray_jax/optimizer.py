@@ -36,12 +36,10 @@ design.png (before and after) and convergence.png.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 import os
 import time
-import tomllib
 
 import equinox as eqx
 import jax
@@ -49,23 +47,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import io as fio
-from ._contact import smoothing
-from ._finger import BACK, FRONT, Finger
-from ._geometry import geometry
+from ._finger import Finger
 from ._grasp import (
     GraspSolution,
-    _half_thickness,
     _moved,
     _Stepper,
-    _with_stiffness,
     grasp,
     release_force,
 )
-from ._objects import _safe_norm
-from ._rod import Integrator
 from ._solution import RESULTS
-from ._solve import SolverOptions, _direct_core
-from .design import DesignError, check_design_names, design_valid, get_design, main_beam_strain
+from ._solve import SolverOptions
+from .design import design_valid
 from .design import set_design as _set_design
 
 __all__ = [
@@ -78,11 +70,27 @@ __all__ = [
     "loads_optimize",
     "run_optimize",
 ]
+from ._objective import (
+    CONSTRAINTS,
+    OBJECTIVES,
+    _Anchors,
+    _Data,
+    _design_of,
+    _loss_and_grad,
+    _pull_slope,
+    _stack,
+    _Static,
+    _with_contact,
+    _z_of,
+)
+from .optimize_file import (
+    _FORMAT,
+    OptimizeError,
+    OptimizeProblem,
+    load_optimize,
+    loads_optimize,
+)
 
-OBJECTIVES = ("contact_force", "holding_force")
-AGGREGATES = ("mean", "worst")
-OPTIMIZERS = ("adam", "sgd")
-CONSTRAINTS = ("min_thickness", "min_spacing", "crossing", "max_strain", "max_pressure")
 PROGRESS_CSV, CHECKPOINT, BEST_TOML, RESULT_JSON = (
     "progress.csv",
     "checkpoint.json",
@@ -91,355 +99,6 @@ PROGRESS_CSV, CHECKPOINT, BEST_TOML, RESULT_JSON = (
 )
 DESIGN_PNG, CONVERGENCE_PNG = "design.png", "convergence.png"
 MAX_HALVINGS = 6
-_FORMAT = 1  # bump when the meaning of an optimisation file or its CSV changes
-
-
-class OptimizeError(fio.FingerFileError):
-    """An invalid optimisation file, or an output directory that holds another run."""
-
-
-# --------------------------------------------------------------------------------------
-# Contact totals (differentiable in reverse mode)
-# --------------------------------------------------------------------------------------
-
-
-def _contact_totals(finger: Finger, sol):
-    """(normal force, total force (x, y, z), pressure front, pressure back) of a solved
-    grasp: the same quantities as `contact_result` (exact totals from the jump of n on
-    every segment, split between objects and support by the sampled shares), written with
-    divisions that stay finite in the unselected branch of a `where`, so that reverse-mode
-    gradients are finite (contact_result's `x / maximum(size, tiny)` is 0 / 0 on segments
-    without contact, where tiny underflows to 0, and its reverse pass gives NaN)."""
-    from ._contact import penalty
-    from ._grasp import _blocks, _blocks_integral, _distributed
-
-    geo = geometry(finger)
-    c = finger.contact
-    k, delta = c.stiffness, smoothing(finger)
-    clamp = (finger.adaptor.front_clamp_length, finger.adaptor.back_clamp_length)
-    force = jnp.zeros(3)
-    normal = jnp.zeros(())
-    pressures = []
-    for beam, bs in ((FRONT, sol.front), (BACK, sol.back)):
-        p = bs.position[:, ::2]
-        h = _half_thickness(finger, beam, bs.s, geo.length[beam])
-        free = bs.s > clamp[beam]
-        q_obj = jnp.zeros_like(bs.s)
-        f_obj = jnp.zeros((bs.s.shape[0], 2))
-        for obj in finger.objects:
-            q = obj.params()
-            d, grad = jax.vmap(jax.value_and_grad(lambda x, q=q, obj=obj: obj.distance(q, x)))(p)
-            qn = jnp.where(free, penalty(d - h, k, delta), 0.0)
-            t = bs.frame[:, ::2, 2]
-            slide = c.friction * jnp.tanh((t @ c.slip_direction) / c.friction_regularisation)
-            f_obj = f_obj + qn[:, None] * (grad + slide[:, None] * t)
-            q_obj = q_obj + qn
-        f_sup = jnp.zeros_like(f_obj)
-        if beam == BACK and finger.adaptor.support_length is not None:
-            th = geo.theta[BACK]
-            nrm = -jnp.stack([jnp.cos(th), -jnp.sin(th)])
-            gap = (p - geo.base[BACK, ::2]) @ nrm
-            on = free & (bs.s < finger.adaptor.support_length)
-            f_sup = jnp.where(on, penalty(gap, k, delta), 0.0)[:, None] * nrm[None]
-        s_b = _blocks(bs.s, sol.steps)
-        n_b = _blocks(bs.force[:, ::2], sol.steps)
-        exact = -(n_b[:, -1] - n_b[:, 0]) - _distributed(finger, beam, s_b[:, 0], s_b[:, -1])
-        so, ss, qo = (_blocks_integral(x, s_b, sol.steps) for x in (f_obj, f_sup, q_obj[:, None]))
-        sampled = so + ss
-        tiny = 1e-24 * jnp.maximum(jnp.sum(exact * exact, axis=1), 1e-280)
-        size = jnp.sum(sampled * sampled, axis=1)
-        has_o = jnp.sum(so * so, axis=1) > tiny
-        has_s = jnp.sum(ss * ss, axis=1) > tiny
-        some = size > tiny
-        scale = jnp.where(some, jnp.sum(exact * sampled, axis=1) / jnp.where(some, size, 1.0), 1.0)
-        obj_part = jnp.where(
-            (~has_s)[:, None], exact, jnp.where(has_o[:, None], scale[:, None] * so, 0.0)
-        )
-        force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
-        q_exact = jnp.where(has_o & some, scale * qo[:, 0], _safe_norm(obj_part))
-        normal = normal + jnp.sum(q_exact)
-        pressures.append(q_obj)
-    return normal, force, pressures[0], pressures[1]
-
-
-# --------------------------------------------------------------------------------------
-# The traced objective
-# --------------------------------------------------------------------------------------
-
-
-class _Static(eqx.Module):
-    """What fixes the compiled program: names, kinds, topology, solver settings."""
-
-    names: tuple = eqx.field(static=True)
-    objective: str = eqx.field(static=True)
-    aggregate: str = eqx.field(static=True)
-    constraints: tuple = eqx.field(static=True)  # the active ones, in CONSTRAINTS order
-    topology: object = eqx.field(static=True)
-    direction: tuple = eqx.field(static=True)  # closing direction w (x, z)
-    pull: tuple = eqx.field(static=True)  # pull direction (x, z)
-    holding_factor: int = eqx.field(static=True)
-    integrator: Integrator
-    options: SolverOptions
-
-
-class _Data(eqx.Module):
-    """The problem's numbers (arrays: changing them never recompiles)."""
-
-    bases: Finger  # the base finger of every object, stacked on a leading axis
-    lo: jax.Array
-    hi: jax.Array
-    limits: jax.Array  # (5,) per CONSTRAINTS; unused entries are ignored
-    scales: jax.Array  # (5,) what a relative margin of 1 means, per CONSTRAINTS
-    objective_scale: jax.Array  # the initial design's objective (normalises the loss)
-    temperature: jax.Array  # worst case: smooth-min temperature, relative to objective_scale
-    weight: jax.Array  # penalty weight
-    shift: jax.Array  # relative inward shift of every constraint in the penalty
-
-
-class _Anchors(eqx.Module):
-    """Per object (leading axis): the warm start of Newton and the grasp's state."""
-
-    unknowns: jax.Array
-    stiffness: jax.Array
-    closing: jax.Array
-    pull: jax.Array  # the peak pull t* (holding force; 0 for the contact force)
-
-
-def _design_of(data: _Data, z):
-    return data.lo + (data.hi - data.lo) * jax.nn.sigmoid(z)
-
-
-def _z_of(data_lo, data_hi, x):
-    u = (np.asarray(x, float) - data_lo) / (data_hi - data_lo)
-    return np.log(u) - np.log1p(-u)
-
-
-def _values(static: _Static, x) -> dict:
-    return {n: x[j] for j, n in enumerate(static.names)}
-
-
-def _solve_one(static: _Static, base: Finger, x, unknowns, stiffness, closing, pull):
-    """The grasp of one object at design x: (objective value, solution, moved finger,
-    pressures front/back)."""
-    finger = _set_design(base, _values(static, x))
-    w, e = jnp.asarray(static.direction), jnp.asarray(static.pull)
-    moved = _with_stiffness(_moved(finger, -closing * w + pull * e), stiffness)
-    sol, _ = _direct_core(static.topology, static.integrator, static.options, moved, unknowns)
-    normal, force, pf, pb = _contact_totals(moved, sol)
-    if static.objective == "contact_force":
-        value = normal
-    else:
-        value = static.holding_factor * jnp.dot(force[::2], e)
-    return value, sol, moved, pf, pb
-
-
-def _design_margins(static: _Static, data: _Data, finger: Finger):
-    """Relative margins (arrays; >= 0 is feasible) and true margins (physical units) of
-    the constraints that depend on the design alone."""
-    rel, true = {}, {}
-    cb = finger.crossbeams
-    C = cb.front_s.shape[0]
-    lim = dict(zip(CONSTRAINTS, data.limits))
-    sc = dict(zip(CONSTRAINTS, data.scales))
-    if "min_thickness" in static.constraints:
-        t = [finger.front.thickness, finger.back.thickness]
-        t += [s.tip_thickness for s in (finger.front, finger.back) if s.tip_thickness is not None]
-        t = jnp.concatenate([jnp.stack(t), cb.thickness])
-        m = t - lim["min_thickness"]
-        rel["min_thickness"], true["min_thickness"] = m / sc["min_thickness"], jnp.min(m)
-    if C >= 2 and "min_spacing" in static.constraints:
-        mean_t = 0.5 * (cb.thickness[1:] + cb.thickness[:-1])
-        gaps = jnp.concatenate([jnp.diff(cb.front_s), jnp.diff(cb.back_s)])
-        m = gaps - jnp.concatenate([mean_t, mean_t]) - lim["min_spacing"]
-        rel["min_spacing"], true["min_spacing"] = m / sc["min_spacing"], jnp.min(m)
-    if C >= 2 and "crossing" in static.constraints:
-        m = jnp.concatenate([jnp.diff(cb.front_s), jnp.diff(cb.back_s)])
-        rel["crossing"], true["crossing"] = m / sc["crossing"], jnp.min(m)
-    return rel, true
-
-
-def _state_margins(static: _Static, data: _Data, fingers, sols, pf, pb):
-    """Strain and pressure margins over every point of every object's grasp (vmapped
-    inputs: leading axis = object)."""
-    rel, true = {}, {}
-    lim = dict(zip(CONSTRAINTS, data.limits))
-    sc = dict(zip(CONSTRAINTS, data.scales))
-    if "max_strain" in static.constraints:
-        strain = jax.vmap(
-            lambda s, f: jnp.concatenate(
-                [main_beam_strain(s, f, FRONT), main_beam_strain(s, f, BACK)]
-            )
-        )(sols, fingers)
-        m = lim["max_strain"] - strain
-        rel["max_strain"], true["max_strain"] = m / sc["max_strain"], jnp.min(m)
-    if "max_pressure" in static.constraints:
-        p = jnp.concatenate(
-            [pf / fingers.front.depth[:, None], pb / fingers.back.depth[:, None]], axis=1
-        )
-        m = lim["max_pressure"] - p
-        rel["max_pressure"], true["max_pressure"] = m / sc["max_pressure"], jnp.min(m)
-    return rel, true
-
-
-def _aggregate(static: _Static, data: _Data, values):
-    """(smooth aggregate for the loss, true aggregate to report)."""
-    if static.aggregate == "mean" or values.shape[0] == 1:
-        m = jnp.mean(values) if static.aggregate == "mean" else values[0]
-        return m, m
-    T = data.temperature * data.objective_scale
-    smooth = -T * jax.nn.logsumexp(-values / T)  # in [min - T log n, min]
-    return smooth, jnp.min(values)
-
-
-def _loss(z, static: _Static, data: _Data, anchors: _Anchors):
-    x = _design_of(data, z)
-    solve = lambda b, u, k, d, t: _solve_one(static, b, x, u, k, d, t)
-    values, sols, moved, pf, pb = jax.vmap(solve)(
-        data.bases, anchors.unknowns, anchors.stiffness, anchors.closing, anchors.pull
-    )
-    smooth, agg = _aggregate(static, data, values)
-    first = jax.tree_util.tree_map(lambda a: a[0], moved)
-    rel, true = _design_margins(static, data, first)
-    r2, t2 = _state_margins(static, data, moved, sols, pf, pb)
-    rel, true = {**rel, **r2}, {**true, **t2}
-    penalty = jnp.zeros(())
-    for m in rel.values():
-        penalty = penalty + jnp.sum(jax.nn.relu(data.shift - m) ** 2)
-    loss = -smooth / data.objective_scale + data.weight * penalty
-    valid = design_valid(first, static.topology)
-    ad = first.adaptor
-    if ad.support_length is not None:
-        valid = valid & (ad.support_length >= ad.back_clamp_length)
-    aux = {
-        "x": x,
-        "values": values,
-        "objective": agg,
-        "penalty": penalty,
-        "margins": true,
-        "valid": valid,
-        "converged": sols.result == RESULTS.successful,
-        "unknowns": sols.unknowns,
-    }
-    return loss, aux
-
-
-_loss_and_grad = eqx.filter_jit(jax.value_and_grad(_loss, has_aux=True))
-_loss_only = eqx.filter_jit(_loss)
-
-
-@eqx.filter_jit
-def _pull_slope(z, static: _Static, data: _Data, anchors: _Anchors):
-    """Per object: F(t), dF/dt at the anchors' pulls, and the equilibria (holding force)."""
-    x = _design_of(data, z)
-
-    def one(b, u, k, d, t):
-        def f(t):
-            value, sol = _solve_one(static, b, x, u, k, d, t)[:2]
-            return value, (sol.unknowns, sol.result == RESULTS.successful)
-
-        value, slope, (unknowns, ok) = jax.jvp(f, (t,), (jnp.ones_like(t),), has_aux=True)
-        return value, slope, unknowns, ok
-
-    return jax.vmap(one)(
-        data.bases, anchors.unknowns, anchors.stiffness, anchors.closing, anchors.pull
-    )
-
-
-# --------------------------------------------------------------------------------------
-# The problem
-# --------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class DesignVar:
-    """One optimised design value, kept in [lo, hi] (initial: the finger's value)."""
-
-    name: str
-    lo: float
-    hi: float
-    initial: float
-
-
-@dataclasses.dataclass(frozen=True)
-class OptimizeProblem:
-    """A parsed optimisation file (see docs/optimize-format.md)."""
-
-    source: str
-    finger_path: str
-    finger: Finger
-    settings: fio.SolveSettings
-    objective: str = "contact_force"
-    friction: float = 0.0
-    closing: float = 6.0
-    direction: tuple = (-1.0, 0.0)
-    pull_direction: tuple = (0.0, 1.0)
-    symmetric: bool = True
-    pull_step: float = 2.0
-    diameters: tuple | None = None
-    object_height: float = 60.0
-    clearance: float = 0.5
-    aggregate: str = "mean"
-    temperature: float = 0.02
-    design: tuple = ()
-    constraints: dict = dataclasses.field(default_factory=dict)
-    optimizer: str = "adam"
-    learning_rate: float = 0.1
-    iterations: int = 30
-    tolerance: float = 1e-4
-    patience: int = 3
-    penalty_weight: float = 100.0
-    penalty_shift: float = 0.01
-    digest: str = ""
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(d.name for d in self.design)
-
-    @property
-    def lo(self) -> np.ndarray:
-        return np.asarray([d.lo for d in self.design], float)
-
-    @property
-    def hi(self) -> np.ndarray:
-        return np.asarray([d.hi for d in self.design], float)
-
-    @property
-    def x0(self) -> np.ndarray:
-        return np.asarray([d.initial for d in self.design], float)
-
-    def object_fingers(self) -> list[Finger]:
-        """The base finger of every object (its design values at the initial design)."""
-        from .studies import with_object
-
-        base = _set_design(self.finger, dict(zip(self.names, self.x0.tolist())))
-        if self.diameters is None:
-            return [base]
-        return [
-            with_object(base, d, height=self.object_height, clearance=self.clearance)
-            for d in self.diameters
-        ]
-
-    def active_constraints(self) -> tuple[str, ...]:
-        n_cb = self.finger.n_crossbeams
-        out = [c for c in CONSTRAINTS if c in self.constraints]
-        if n_cb >= 2 and any(n.startswith("crossbeams.") for n in self.names):
-            out.append("crossing")  # always, when the layout moves
-        return tuple(c for c in CONSTRAINTS if c in out)
-
-    def designed(self, x) -> Finger:
-        """The base finger with design values x (one per [[design]] entry)."""
-        return _set_design(self.finger, dict(zip(self.names, np.asarray(x, float).tolist())))
-
-
-def _stack(trees):
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
-
-
-def _with_contact(finger: Finger, **values) -> Finger:
-    c = finger.contact
-    for key, v in values.items():
-        c = eqx.tree_at(lambda c, key=key: getattr(c, key), c, jnp.asarray(v, jnp.float64))
-    return eqx.tree_at(lambda f: f.contact, finger, c)
 
 
 @dataclasses.dataclass
@@ -1081,228 +740,3 @@ def _plots(problem: OptimizeProblem, setup: _Setup, state: dict, out_dir: str, s
     design = os.path.join(out_dir, DESIGN_PNG)
     save_figure(fig, design)
     return (design, conv)
-
-
-# --------------------------------------------------------------------------------------
-# Reading optimisation files
-# --------------------------------------------------------------------------------------
-
-_TOP = (
-    "finger",
-    "objective",
-    "friction",
-    "closing",
-    "objects",
-    "design",
-    "constraints",
-    "optimizer",
-    "penalty",
-)
-_HELP = {
-    "finger": " (path of the base finger file with [[objects]], relative to this file)",
-    "design": " (one [[design]] table per optimised value, with name and bounds)",
-    "name": " (a design value, e.g. adaptor.back_clamp_length or crossbeams.front_s[2])",
-    "bounds": " ([lo, hi])",
-}
-
-
-def _required(r, table, path, keys):
-    for key in keys:
-        if key not in table:
-            full = f"{path}.{key}" if path else key
-            raise r.error(full, "missing required key" + _HELP.get(key, ""))
-
-
-def loads_optimize(text: str, *, source: str = "<string>", base_dir: str = ".") -> OptimizeProblem:
-    """Read an optimisation from TOML text; the finger path is relative to `base_dir`."""
-    r = fio._Reader(source)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise OptimizeError(f"{source}: not valid TOML: {e}") from None
-    try:
-        return _parse(doc, r, source, base_dir)
-    except OptimizeError:
-        raise
-    except fio.FingerFileError as e:
-        raise OptimizeError(str(e)) from None
-
-
-def load_optimize(path) -> OptimizeProblem:
-    """Read an optimisation file. Raises OptimizeError naming the key and the value."""
-    path = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            text = fh.read().decode("utf-8")
-    except OSError as e:
-        raise OptimizeError(f"{path}: cannot read the optimisation file: {e.strerror}") from None
-    except UnicodeDecodeError as e:
-        raise OptimizeError(f"{path}: not UTF-8 text: {e}") from None
-    return loads_optimize(text, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
-
-
-def _parse(doc, r, source, base_dir) -> OptimizeProblem:
-    r.table(doc, "", _TOP)
-    _required(r, doc, "", ("finger", "design"))
-    rel = r.string(doc["finger"], "finger")
-    finger_path = os.path.normpath(os.path.join(base_dir, rel))
-    if not os.path.isfile(finger_path):
-        raise r.error("finger", f"no such finger file: {finger_path}", rel)
-    finger, settings = fio.load_finger(finger_path)
-    with open(finger_path, "rb") as fh:
-        finger_hash = hashlib.sha256(fh.read()).hexdigest()
-    gs = settings.grasp
-    kw = {}
-    kw["objective"] = r.string(doc.get("objective", "contact_force"), "objective", OBJECTIVES)
-    kw["friction"] = r.number(doc.get("friction", 0.0), "friction", nonnegative=True)
-    if kw["friction"] > 0 and kw["objective"] != "holding_force":
-        raise r.error(
-            "friction",
-            'is for objective = "holding_force" (closing is frictionless)',
-            doc["friction"],
-        )
-    closing = doc.get("closing", None if gs is None else gs.closing)
-    if closing is None:
-        raise r.error(
-            "closing",
-            "missing: give closing (mm) here or [grasp] closing in the "
-            "finger file (an actuator force is not supported by the optimiser)",
-        )
-    kw["closing"] = r.number(closing, "closing", positive=True)
-    if gs is not None:
-        kw.update(direction=gs.direction, symmetric=gs.symmetric, pull_step=gs.pull_step)
-
-    obj = r.table(
-        doc.get("objects", {}),
-        "objects",
-        ("diameters", "height", "clearance", "aggregate", "temperature"),
-    )
-    if "diameters" in obj:
-        ds = obj["diameters"]
-        if not isinstance(ds, list) or not ds:
-            raise r.error("objects.diameters", "expected a non-empty array of diameters (mm)", ds)
-        kw["diameters"] = tuple(
-            r.number(d, f"objects.diameters[{i}]", positive=True) for i, d in enumerate(ds)
-        )
-        kw["object_height"] = r.number(obj.get("height", 60.0), "objects.height")
-        kw["clearance"] = r.number(obj.get("clearance", 0.5), "objects.clearance", positive=True)
-    else:
-        for key in ("height", "clearance"):
-            if key in obj:
-                raise r.error(
-                    f"objects.{key}",
-                    "is for objects.diameters (cylinders placed by the optimiser)",
-                    obj[key],
-                )
-        if len(finger.objects) != 1:
-            raise r.error(
-                "finger",
-                f"the finger file has {len(finger.objects)} objects; the "
-                "optimiser needs exactly one, or objects.diameters",
-                rel,
-            )
-    kw["aggregate"] = r.string(obj.get("aggregate", "mean"), "objects.aggregate", AGGREGATES)
-    kw["temperature"] = r.number(obj.get("temperature", 0.02), "objects.temperature", positive=True)
-
-    design = []
-    for i, tbl in enumerate(r.array_of_tables(doc["design"], "design")):
-        p = f"design[{i}]"
-        r.table(tbl, p, ("name", "bounds", "initial"))
-        _required(r, tbl, p, ("name", "bounds"))
-        name = r.string(tbl["name"], f"{p}.name")
-        try:
-            check_design_names(finger, [name], scalar=True)
-            current = float(get_design(finger, [name])[name])
-        except DesignError as e:
-            raise r.error(f"{p}.name", str(e), name) from None
-        if name in (d.name for d in design):
-            raise r.error(f"{p}.name", "listed twice", name)
-        lo, hi = r.vector(tbl["bounds"], f"{p}.bounds", 2, "[lo, hi]")
-        if not lo < hi:
-            raise r.error(f"{p}.bounds", "needs lo < hi", tbl["bounds"])
-        x0 = r.number(tbl["initial"], f"{p}.initial") if "initial" in tbl else current
-        if not lo < x0 < hi:
-            what = f"{p}.initial" if "initial" in tbl else f"{p}.bounds"
-            val = tbl["initial"] if "initial" in tbl else tbl["bounds"]
-            raise r.error(
-                what,
-                f"the initial value {x0!r} of {name} must lie strictly inside "
-                f"the bounds [{lo!r}, {hi!r}]",
-                val,
-            )
-        design.append(DesignVar(name, lo, hi, x0))
-    if not design:
-        raise r.error("design", "needs at least one [[design]] table" + _HELP["design"])
-    kw["design"] = tuple(design)
-    names = [d.name for d in design]
-    if "adaptor.support_length" in names or "adaptor.back_clamp_length" in names:
-        if finger.adaptor.support_length is not None:
-            lc = next((d for d in design if d.name == "adaptor.back_clamp_length"), None)
-            ls = next((d for d in design if d.name == "adaptor.support_length"), None)
-            lc_hi = float(finger.adaptor.back_clamp_length) if lc is None else lc.hi
-            ls_lo = float(finger.adaptor.support_length) if ls is None else ls.lo
-            if lc_hi > ls_lo:
-                raise r.error(
-                    "design",
-                    f"the bounds let the clamp (up to {lc_hi!r} mm) pass "
-                    f"the support's end (from {ls_lo!r} mm): keep "
-                    "adaptor.back_clamp_length <= adaptor.support_length",
-                )
-
-    cons = r.table(
-        doc.get("constraints", {}),
-        "constraints",
-        ("min_thickness", "min_spacing", "max_strain", "max_pressure"),
-    )
-    kw["constraints"] = {
-        key: r.number(
-            v, f"constraints.{key}", positive=key != "min_spacing", nonnegative=key == "min_spacing"
-        )
-        for key, v in cons.items()
-    }
-
-    o = r.table(
-        doc.get("optimizer", {}),
-        "optimizer",
-        ("kind", "learning_rate", "iterations", "tolerance", "patience"),
-    )
-    kw["optimizer"] = r.string(o.get("kind", "adam"), "optimizer.kind", OPTIMIZERS)
-    kw["learning_rate"] = r.number(
-        o.get("learning_rate", 0.1), "optimizer.learning_rate", positive=True
-    )
-    kw["iterations"] = r.integer(o.get("iterations", 30), "optimizer.iterations", minimum=1)
-    kw["tolerance"] = r.number(o.get("tolerance", 1e-4), "optimizer.tolerance", nonnegative=True)
-    kw["patience"] = r.integer(o.get("patience", 3), "optimizer.patience", minimum=1)
-    pen = r.table(doc.get("penalty", {}), "penalty", ("weight", "shift"))
-    kw["penalty_weight"] = r.number(pen.get("weight", 100.0), "penalty.weight", positive=True)
-    kw["penalty_shift"] = r.number(pen.get("shift", 0.01), "penalty.shift", nonnegative=True)
-
-    problem = OptimizeProblem(source, finger_path, finger, settings, **kw)
-    x0f = problem.designed(problem.x0)
-    from ._finger import validate_finger
-
-    try:
-        validate_finger(x0f)
-    except Exception as e:  # noqa: BLE001 - reported with the file's name
-        raise r.error("design", f"the initial design is invalid: {e}") from None
-    if "min_thickness" in kw["constraints"]:
-        t = [float(x0f.front.thickness), float(x0f.back.thickness)]
-        t += np.asarray(x0f.crossbeams.thickness).tolist()
-        if min(t) < kw["constraints"]["min_thickness"]:
-            raise r.error(
-                "constraints.min_thickness",
-                f"the initial design has a beam of thickness {min(t)!r} mm, below the limit",
-                cons["min_thickness"],
-            )
-    key = {
-        "format": _FORMAT,
-        "finger_sha256": finger_hash,
-        **{k: (list(v) if isinstance(v, tuple) else v) for k, v in kw.items() if k != "design"},
-        "design": [[d.name, d.lo, d.hi, d.initial] for d in design],
-    }
-    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
-    # iterations and tolerance may change between runs: a longer run continues the same one
-    for k in ("iterations", "tolerance", "patience"):
-        key.pop(k)
-    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
-    return dataclasses.replace(problem, digest=digest)

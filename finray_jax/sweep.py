@@ -15,7 +15,6 @@ import json
 import math
 import os
 import time
-import tomllib
 from collections.abc import Callable
 
 import numpy as np
@@ -111,51 +110,20 @@ _HELP = {
 }
 
 
-def _required(r, table, path, keys):
-    for key in keys:
-        if key not in table:
-            full = f"{path}.{key}" if path else key
-            raise r.error(full, "missing required key" + _HELP.get(key, ""))
-
-
 def loads_sweep(text: str, *, source: str = "<string>", base_dir: str = ".") -> Sweep:
     """Read a sweep from TOML text; the finger path is relative to `base_dir`."""
-    r = fio._Reader(source)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise SweepError(f"{source}: not valid TOML: {e}") from None
-    try:
-        return _parse(doc, r, source, base_dir)
-    except SweepError:
-        raise
-    except fio.FingerFileError as e:
-        raise SweepError(str(e)) from None
+    return fio._loads_study(text, _parse, SweepError, source, base_dir)
 
 
 def load_sweep(path) -> Sweep:
     """Read a sweep file. Raises SweepError (a FingerFileError) naming the key and value."""
-    path = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            text = fh.read().decode("utf-8")
-    except OSError as e:
-        raise SweepError(f"{path}: cannot read the sweep file: {e.strerror}") from None
-    except UnicodeDecodeError as e:
-        raise SweepError(f"{path}: not UTF-8 text: {e}") from None
-    return loads_sweep(text, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+    return fio._load_study(path, loads_sweep, "sweep", SweepError)
 
 
 def _parse(doc, r, source, base_dir) -> Sweep:
     r.table(doc, "", _TOP)
-    _required(r, doc, "", ("finger", "outputs", "sampling", "design"))
-    rel = r.string(doc["finger"], "finger")
-    finger_path = os.path.normpath(os.path.join(base_dir, rel))
-    if not os.path.isfile(finger_path):
-        raise r.error("finger", f"no such finger file: {finger_path}", rel)
-    finger, settings = fio.load_finger(finger_path)
-    with open(finger_path, "rb") as fh:
-        finger_hash = hashlib.sha256(fh.read()).hexdigest()
+    fio._require(r, doc, "", ("finger", "outputs", "sampling", "design"), _HELP)
+    finger, settings, finger_path, finger_hash = fio._base_finger(doc, r, base_dir)
 
     mode = r.string(doc.get("mode", settings.mode), "mode", fio.MODES)
     mode = resolve_mode(finger, mode)
@@ -174,11 +142,11 @@ def _parse(doc, r, source, base_dir) -> Sweep:
             raise r.error(f"outputs[{i}]", "listed twice", name)
 
     smp = r.table(doc["sampling"], "sampling", ("kind", "n", "seed"))
-    _required(r, smp, "sampling", ("kind",))
+    fio._require(r, smp, "sampling", ("kind",), _HELP)
     kind = r.string(smp["kind"], "sampling.kind", SAMPLINGS)
     n_random, seed = 0, 0
     if kind == "random":
-        _required(r, smp, "sampling", ("n",))
+        fio._require(r, smp, "sampling", ("n",), _HELP)
         n_random = r.integer(smp["n"], "sampling.n", minimum=1)
         seed = r.integer(smp.get("seed", 0), "sampling.seed", minimum=0)
     else:
@@ -190,7 +158,7 @@ def _parse(doc, r, source, base_dir) -> Sweep:
     for i, tbl in enumerate(r.array_of_tables(doc["design"], "design")):
         p = f"design[{i}]"
         r.table(tbl, p, ("name", "range", "points"))
-        _required(r, tbl, p, ("name", "range") + (("points",) if kind == "grid" else ()))
+        fio._require(r, tbl, p, ("name", "range") + (("points",) if kind == "grid" else ()), _HELP)
         name = r.string(tbl["name"], f"{p}.name")
         try:
             check_design_names(finger, [name], scalar=True)

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import finray_jax as fr
+from finray_jax import _objective as OBJ
 from finray_jax import optimizer as O
 from finray_jax.cli import main
 
@@ -141,7 +142,7 @@ def test_reparameterisation_keeps_every_value_inside_its_bounds():
 
 
 def _dummy_data(limits=(0.0,) * 5, scales=(1.0,) * 5):
-    return O._Data(
+    return OBJ._Data(
         bases=None,
         lo=jnp.zeros(1),
         hi=jnp.ones(1),
@@ -155,7 +156,7 @@ def _dummy_data(limits=(0.0,) * 5, scales=(1.0,) * 5):
 
 
 def _static(constraints, aggregate="mean"):
-    return O._Static(
+    return OBJ._Static(
         names=(),
         objective="contact_force",
         aggregate=aggregate,
@@ -174,7 +175,7 @@ def test_design_constraint_margins_thickness_spacing_crossing():
     cb = finger.crossbeams
     st = _static(("min_thickness", "min_spacing", "crossing"))
     data = _dummy_data(limits=(2.5, 4.0, 0.0, 0.0, 0.0), scales=(2.5, 4.0, 1.0, 1.0, 1.0))
-    rel, true = O._design_margins(st, data, finger)
+    rel, true = OBJ._design_margins(st, data, finger)
     # thinnest beam: the crossbeams' 2 mm, limit 2.5 mm
     assert float(true["min_thickness"]) == pytest.approx(2.0 - 2.5)
     gaps = np.concatenate([np.diff(np.asarray(cb.front_s)), np.diff(np.asarray(cb.back_s))])
@@ -182,7 +183,7 @@ def test_design_constraint_margins_thickness_spacing_crossing():
     assert float(true["crossing"]) == pytest.approx(gaps.min())
     # crossbeam 3's back end moved past crossbeam 2's: crossed (negative margin)
     crossed = eqx.tree_at(lambda f: f.crossbeams.back_s, finger, cb.back_s.at[3].set(40.0))
-    _, t2 = O._design_margins(st, data, crossed)
+    _, t2 = OBJ._design_margins(st, data, crossed)
     assert float(t2["crossing"]) == pytest.approx(40.0 - float(cb.back_s[2]))
     assert float(t2["crossing"]) < 0
 
@@ -191,11 +192,11 @@ def test_worst_case_is_a_smooth_minimum_below_the_true_one():
     st = _static((), aggregate="worst")
     data = eqx.tree_at(lambda d: d.objective_scale, _dummy_data(), jnp.asarray(10.0))
     values = jnp.array([10.0, 10.5, 14.0])
-    smooth, true = O._aggregate(st, data, values)
+    smooth, true = OBJ._aggregate(st, data, values)
     T = 0.02 * 10.0
     assert float(true) == 10.0
     assert 10.0 - T * np.log(3) <= float(smooth) <= 10.0
-    g = jax.grad(lambda v: O._aggregate(st, data, v)[0])(values)
+    g = jax.grad(lambda v: OBJ._aggregate(st, data, v)[0])(values)
     assert float(jnp.sum(g)) == pytest.approx(1.0) and float(g[0]) > float(g[1]) > float(g[2])
 
 

@@ -1,0 +1,306 @@
+"""Optimisation files (TOML, docs/optimize-format.md): the problem they describe and
+how they are read. `load_optimize(path)` raises OptimizeError naming the key and value."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+
+import numpy as np
+
+from . import io as fio
+from ._finger import Finger
+from .design import DesignError, check_design_names, get_design
+from .design import set_design as _set_design
+
+__all__ = ["DesignVar", "OptimizeError", "OptimizeProblem", "load_optimize", "loads_optimize"]
+
+from ._objective import AGGREGATES, CONSTRAINTS, OBJECTIVES
+
+OPTIMIZERS = ("adam", "sgd")
+_FORMAT = 1  # bump when the meaning of an optimisation file or its CSV changes
+
+
+class OptimizeError(fio.FingerFileError):
+    """An invalid optimisation file, or an output directory that holds another run."""
+
+
+# --------------------------------------------------------------------------------------
+# The problem
+# --------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class DesignVar:
+    """One optimised design value, kept in [lo, hi] (initial: the finger's value)."""
+
+    name: str
+    lo: float
+    hi: float
+    initial: float
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizeProblem:
+    """A parsed optimisation file (see docs/optimize-format.md)."""
+
+    source: str
+    finger_path: str
+    finger: Finger
+    settings: fio.SolveSettings
+    objective: str = "contact_force"
+    friction: float = 0.0
+    closing: float = 6.0
+    direction: tuple = (-1.0, 0.0)
+    pull_direction: tuple = (0.0, 1.0)
+    symmetric: bool = True
+    pull_step: float = 2.0
+    diameters: tuple | None = None
+    object_height: float = 60.0
+    clearance: float = 0.5
+    aggregate: str = "mean"
+    temperature: float = 0.02
+    design: tuple = ()
+    constraints: dict = dataclasses.field(default_factory=dict)
+    optimizer: str = "adam"
+    learning_rate: float = 0.1
+    iterations: int = 30
+    tolerance: float = 1e-4
+    patience: int = 3
+    penalty_weight: float = 100.0
+    penalty_shift: float = 0.01
+    digest: str = ""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(d.name for d in self.design)
+
+    @property
+    def lo(self) -> np.ndarray:
+        return np.asarray([d.lo for d in self.design], float)
+
+    @property
+    def hi(self) -> np.ndarray:
+        return np.asarray([d.hi for d in self.design], float)
+
+    @property
+    def x0(self) -> np.ndarray:
+        return np.asarray([d.initial for d in self.design], float)
+
+    def object_fingers(self) -> list[Finger]:
+        """The base finger of every object (its design values at the initial design)."""
+        from .studies import with_object
+
+        base = _set_design(self.finger, dict(zip(self.names, self.x0.tolist())))
+        if self.diameters is None:
+            return [base]
+        return [
+            with_object(base, d, height=self.object_height, clearance=self.clearance)
+            for d in self.diameters
+        ]
+
+    def active_constraints(self) -> tuple[str, ...]:
+        n_cb = self.finger.n_crossbeams
+        out = [c for c in CONSTRAINTS if c in self.constraints]
+        if n_cb >= 2 and any(n.startswith("crossbeams.") for n in self.names):
+            out.append("crossing")  # always, when the layout moves
+        return tuple(c for c in CONSTRAINTS if c in out)
+
+    def designed(self, x) -> Finger:
+        """The base finger with design values x (one per [[design]] entry)."""
+        return _set_design(self.finger, dict(zip(self.names, np.asarray(x, float).tolist())))
+
+
+# --------------------------------------------------------------------------------------
+# Reading optimisation files
+# --------------------------------------------------------------------------------------
+
+_TOP = (
+    "finger",
+    "objective",
+    "friction",
+    "closing",
+    "objects",
+    "design",
+    "constraints",
+    "optimizer",
+    "penalty",
+)
+_HELP = {
+    "finger": " (path of the base finger file with [[objects]], relative to this file)",
+    "design": " (one [[design]] table per optimised value, with name and bounds)",
+    "name": " (a design value, e.g. adaptor.back_clamp_length or crossbeams.front_s[2])",
+    "bounds": " ([lo, hi])",
+}
+
+
+def loads_optimize(text: str, *, source: str = "<string>", base_dir: str = ".") -> OptimizeProblem:
+    """Read an optimisation from TOML text; the finger path is relative to `base_dir`."""
+    return fio._loads_study(text, _parse, OptimizeError, source, base_dir)
+
+
+def load_optimize(path) -> OptimizeProblem:
+    """Read an optimisation file. Raises OptimizeError naming the key and the value."""
+    return fio._load_study(path, loads_optimize, "optimisation", OptimizeError)
+
+
+def _parse(doc, r, source, base_dir) -> OptimizeProblem:
+    r.table(doc, "", _TOP)
+    fio._require(r, doc, "", ("finger", "design"), _HELP)
+    finger, settings, finger_path, finger_hash = fio._base_finger(doc, r, base_dir)
+    gs = settings.grasp
+    kw = {}
+    kw["objective"] = r.string(doc.get("objective", "contact_force"), "objective", OBJECTIVES)
+    kw["friction"] = r.number(doc.get("friction", 0.0), "friction", nonnegative=True)
+    if kw["friction"] > 0 and kw["objective"] != "holding_force":
+        raise r.error(
+            "friction",
+            'is for objective = "holding_force" (closing is frictionless)',
+            doc["friction"],
+        )
+    closing = doc.get("closing", None if gs is None else gs.closing)
+    if closing is None:
+        raise r.error(
+            "closing",
+            "missing: give closing (mm) here or [grasp] closing in the "
+            "finger file (an actuator force is not supported by the optimiser)",
+        )
+    kw["closing"] = r.number(closing, "closing", positive=True)
+    if gs is not None:
+        kw.update(direction=gs.direction, symmetric=gs.symmetric, pull_step=gs.pull_step)
+
+    obj = r.table(
+        doc.get("objects", {}),
+        "objects",
+        ("diameters", "height", "clearance", "aggregate", "temperature"),
+    )
+    if "diameters" in obj:
+        ds = obj["diameters"]
+        if not isinstance(ds, list) or not ds:
+            raise r.error("objects.diameters", "expected a non-empty array of diameters (mm)", ds)
+        kw["diameters"] = tuple(
+            r.number(d, f"objects.diameters[{i}]", positive=True) for i, d in enumerate(ds)
+        )
+        kw["object_height"] = r.number(obj.get("height", 60.0), "objects.height")
+        kw["clearance"] = r.number(obj.get("clearance", 0.5), "objects.clearance", positive=True)
+    else:
+        for key in ("height", "clearance"):
+            if key in obj:
+                raise r.error(
+                    f"objects.{key}",
+                    "is for objects.diameters (cylinders placed by the optimiser)",
+                    obj[key],
+                )
+        if len(finger.objects) != 1:
+            raise r.error(
+                "finger",
+                f"the finger file has {len(finger.objects)} objects; the "
+                "optimiser needs exactly one, or objects.diameters",
+                doc["finger"],
+            )
+    kw["aggregate"] = r.string(obj.get("aggregate", "mean"), "objects.aggregate", AGGREGATES)
+    kw["temperature"] = r.number(obj.get("temperature", 0.02), "objects.temperature", positive=True)
+
+    design = []
+    for i, tbl in enumerate(r.array_of_tables(doc["design"], "design")):
+        p = f"design[{i}]"
+        r.table(tbl, p, ("name", "bounds", "initial"))
+        fio._require(r, tbl, p, ("name", "bounds"), _HELP)
+        name = r.string(tbl["name"], f"{p}.name")
+        try:
+            check_design_names(finger, [name], scalar=True)
+            current = float(get_design(finger, [name])[name])
+        except DesignError as e:
+            raise r.error(f"{p}.name", str(e), name) from None
+        if name in (d.name for d in design):
+            raise r.error(f"{p}.name", "listed twice", name)
+        lo, hi = r.vector(tbl["bounds"], f"{p}.bounds", 2, "[lo, hi]")
+        if not lo < hi:
+            raise r.error(f"{p}.bounds", "needs lo < hi", tbl["bounds"])
+        x0 = r.number(tbl["initial"], f"{p}.initial") if "initial" in tbl else current
+        if not lo < x0 < hi:
+            what = f"{p}.initial" if "initial" in tbl else f"{p}.bounds"
+            val = tbl["initial"] if "initial" in tbl else tbl["bounds"]
+            raise r.error(
+                what,
+                f"the initial value {x0!r} of {name} must lie strictly inside "
+                f"the bounds [{lo!r}, {hi!r}]",
+                val,
+            )
+        design.append(DesignVar(name, lo, hi, x0))
+    if not design:
+        raise r.error("design", "needs at least one [[design]] table" + _HELP["design"])
+    kw["design"] = tuple(design)
+    names = [d.name for d in design]
+    if "adaptor.support_length" in names or "adaptor.back_clamp_length" in names:
+        if finger.adaptor.support_length is not None:
+            lc = next((d for d in design if d.name == "adaptor.back_clamp_length"), None)
+            ls = next((d for d in design if d.name == "adaptor.support_length"), None)
+            lc_hi = float(finger.adaptor.back_clamp_length) if lc is None else lc.hi
+            ls_lo = float(finger.adaptor.support_length) if ls is None else ls.lo
+            if lc_hi > ls_lo:
+                raise r.error(
+                    "design",
+                    f"the bounds let the clamp (up to {lc_hi!r} mm) pass "
+                    f"the support's end (from {ls_lo!r} mm): keep "
+                    "adaptor.back_clamp_length <= adaptor.support_length",
+                )
+
+    cons = r.table(
+        doc.get("constraints", {}),
+        "constraints",
+        ("min_thickness", "min_spacing", "max_strain", "max_pressure"),
+    )
+    kw["constraints"] = {
+        key: r.number(
+            v, f"constraints.{key}", positive=key != "min_spacing", nonnegative=key == "min_spacing"
+        )
+        for key, v in cons.items()
+    }
+
+    o = r.table(
+        doc.get("optimizer", {}),
+        "optimizer",
+        ("kind", "learning_rate", "iterations", "tolerance", "patience"),
+    )
+    kw["optimizer"] = r.string(o.get("kind", "adam"), "optimizer.kind", OPTIMIZERS)
+    kw["learning_rate"] = r.number(
+        o.get("learning_rate", 0.1), "optimizer.learning_rate", positive=True
+    )
+    kw["iterations"] = r.integer(o.get("iterations", 30), "optimizer.iterations", minimum=1)
+    kw["tolerance"] = r.number(o.get("tolerance", 1e-4), "optimizer.tolerance", nonnegative=True)
+    kw["patience"] = r.integer(o.get("patience", 3), "optimizer.patience", minimum=1)
+    pen = r.table(doc.get("penalty", {}), "penalty", ("weight", "shift"))
+    kw["penalty_weight"] = r.number(pen.get("weight", 100.0), "penalty.weight", positive=True)
+    kw["penalty_shift"] = r.number(pen.get("shift", 0.01), "penalty.shift", nonnegative=True)
+
+    problem = OptimizeProblem(source, finger_path, finger, settings, **kw)
+    x0f = problem.designed(problem.x0)
+    from ._finger import validate_finger
+
+    try:
+        validate_finger(x0f)
+    except Exception as e:  # noqa: BLE001 - reported with the file's name
+        raise r.error("design", f"the initial design is invalid: {e}") from None
+    if "min_thickness" in kw["constraints"]:
+        t = [float(x0f.front.thickness), float(x0f.back.thickness)]
+        t += np.asarray(x0f.crossbeams.thickness).tolist()
+        if min(t) < kw["constraints"]["min_thickness"]:
+            raise r.error(
+                "constraints.min_thickness",
+                f"the initial design has a beam of thickness {min(t)!r} mm, below the limit",
+                cons["min_thickness"],
+            )
+    key = {
+        "format": _FORMAT,
+        "finger_sha256": finger_hash,
+        **{k: (list(v) if isinstance(v, tuple) else v) for k, v in kw.items() if k != "design"},
+        "design": [[d.name, d.lo, d.hi, d.initial] for d in design],
+    }
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+    # iterations and tolerance may change between runs: a longer run continues the same one
+    for k in ("iterations", "tolerance", "patience"):
+        key.pop(k)
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+    return dataclasses.replace(problem, digest=digest)
