@@ -37,13 +37,16 @@ import dataclasses
 import math
 import time
 
-import numpy as np
-
 import elastica as ea
+import numpy as np
 
 
 class _Sim(
-    ea.BaseSystemCollection, ea.Connections, ea.Constraints, ea.Forcing, ea.Damping,
+    ea.BaseSystemCollection,
+    ea.Connections,
+    ea.Constraints,
+    ea.Forcing,
+    ea.Damping,
 ):
     pass
 
@@ -105,8 +108,17 @@ class Beam:
 
 
 class ElasticaFinger:
-    def __init__(self, finger, dx=1.25, short=0.1, joint_k=10.0, joint_kt=200.0,
-                 damping=8.0, ramp_periods=0.3, dt_safety=0.5):
+    def __init__(
+        self,
+        finger,
+        dx=1.25,
+        short=0.1,
+        joint_k=10.0,
+        joint_kt=200.0,
+        damping=8.0,
+        ramp_periods=0.3,
+        dt_safety=0.5,
+    ):
         """finger: a finray_jax Finger (ref-A-like). dx: element size (mm); short: length
         of the elements next to joints and clamps, as a fraction of dx; joint_k, joint_kt:
         joint springs in units of EA/dx and EI/dx of the front beam; damping: damping
@@ -146,17 +158,34 @@ class ElasticaFinger:
             marks_f.setdefault(s1, None)
         marks_b = {0.0: "after", lb: "before"}
         marks_b.update({float(s): "after" for s in bs})
-        self.front = Beam(_nodes(lf, marks_f, dx, eps), fb, (tip - fb) / lf,
-                          f(finger.front.thickness), f(finger.front.depth))
-        self.back = Beam(_nodes(lb, marks_b, dx, eps), bb, (tip - bb) / lb,
-                         f(finger.back.thickness), f(finger.back.depth))
+        self.front = Beam(
+            _nodes(lf, marks_f, dx, eps),
+            fb,
+            (tip - fb) / lf,
+            f(finger.front.thickness),
+            f(finger.front.depth),
+        )
+        self.back = Beam(
+            _nodes(lb, marks_b, dx, eps),
+            bb,
+            (tip - bb) / lb,
+            f(finger.back.thickness),
+            f(finger.back.depth),
+        )
         self.cross = []
         for a, b, t, d in zip(fs, bs, arr(cb.thickness), arr(cb.depth)):
             pa = fb + a * (tip - fb) / lf
             pb = bb + b * (tip - bb) / lb
             lc = float(np.linalg.norm(pb - pa))
-            self.cross.append(Beam(_nodes(lc, {0.0: "after", lc: "before"}, dx, eps), pa,
-                                   (pb - pa) / lc, float(t), float(d)))
+            self.cross.append(
+                Beam(
+                    _nodes(lc, {0.0: "after", lc: "before"}, dx, eps),
+                    pa,
+                    (pb - pa) / lc,
+                    float(t),
+                    float(d),
+                )
+            )
 
         # scales for the joint springs and the time step
         A, I = self.front.t * self.front.d, self.front.d * self.front.t**3 / 12
@@ -178,9 +207,16 @@ class ElasticaFinger:
         n = len(beam.s) - 1
         direction = np.array([beam.direction[0], 0.0, beam.direction[1]])
         rod = ea.CosseratRod.straight_rod(
-            n, pos[:, 0], direction, np.array([0.0, 1.0, 0.0]), float(beam.s[-1]),
-            base_radius=1.0, density=self.rho, youngs_modulus=self.E,
-            shear_modulus=self.G, position=pos,
+            n,
+            pos[:, 0],
+            direction,
+            np.array([0.0, 1.0, 0.0]),
+            float(beam.s[-1]),
+            base_radius=1.0,
+            density=self.rho,
+            youngs_modulus=self.E,
+            shear_modulus=self.G,
+            position=pos,
         )
         t, d = beam.t, beam.d
         A = t * d
@@ -195,9 +231,13 @@ class ElasticaFinger:
         rod.bend_matrix[1, 1] = self.E * I_out
         rod.bend_matrix[2, 2] = self.G * J
         beam.rod = rod
-        beam.stiff = dict(EA=self.E * A, GA=self.k * self.G * A,
-                          B=np.array([self.E * I_in, self.E * I_out, self.G * J]),
-                          Iphys=np.array([I_in, I_out, J]), ell=ell)
+        beam.stiff = dict(
+            EA=self.E * A,
+            GA=self.k * self.G * A,
+            B=np.array([self.E * I_in, self.E * I_out, self.G * J]),
+            Iphys=np.array([I_in, I_out, J]),
+            ell=ell,
+        )
         # fictitious inertia, completed once the joints are known (_scale_inertia)
         beam.extra_k = np.zeros(n + 1)  # joint translational springs per node
         beam.extra_kt = np.zeros(n)  # joint rotational springs per element
@@ -239,7 +279,11 @@ class ElasticaFinger:
         r1, r2 = b1.rod, b2.rod
         rest = r1.director_collection[..., i1] @ r2.director_collection[..., i2].T
         sim.connect(r1, r2, first_connect_idx=i1, second_connect_idx=i2).using(
-            ea.FixedJoint, k=self.kj, nu=0.0, kt=self.ktj, nut=0.0,
+            ea.FixedJoint,
+            k=self.kj,
+            nu=0.0,
+            kt=self.ktj,
+            nut=0.0,
             rest_rotation_matrix=rest,
         )
         for b, i in ((b1, i1), (b2, i2)):
@@ -256,8 +300,9 @@ class ElasticaFinger:
             self._joint(sim, self.back, self.back.node(self.back_s[j]), cbeam, -1)
         self._joint(sim, self.front, -1, self.back, -1)
         for b in (self.front, self.back):
-            sim.constrain(b.rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,),
-                                       constrained_director_idx=(0,))
+            sim.constrain(b.rod).using(
+                ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,)
+            )
         for b in beams:
             self._scale_inertia(b)
         # frequency scale: the cantilever-like first mode of the front beam,
@@ -270,8 +315,9 @@ class ElasticaFinger:
         self.omega_1 = 3.52 * math.sqrt(fr_.stiff["B"][0] / (m_per_len * L**4))
         gamma = self.damping_multiple * self.omega_1
         for b in beams:
-            sim.dampen(b.rod).using(ea.AnalyticalLinearDamper,
-                                    uniform_damping_constant=gamma, time_step=self.dt)
+            sim.dampen(b.rod).using(
+                ea.AnalyticalLinearDamper, uniform_damping_constant=gamma, time_step=self.dt
+            )
         nodes, forces = [], []
         for s, F in self.point:
             nodes.append(self.front.node(s))
@@ -325,8 +371,11 @@ class ElasticaFinger:
             if not np.all(np.isfinite(tip)):
                 hist.append((wall, steps, float("nan"), float("nan"), float("nan")))
                 break
-            rel = float(np.linalg.norm(tip - ref) / np.linalg.norm(ref)) if ref is not None \
+            rel = (
+                float(np.linalg.norm(tip - ref) / np.linalg.norm(ref))
+                if ref is not None
                 else float("nan")
+            )
             hist.append((wall, steps, float(tip[0]), float(tip[1]), rel))
             moved = float(np.linalg.norm(tip - prev)) / max(float(np.linalg.norm(tip)), 1e-12)
             prev = tip
@@ -344,8 +393,9 @@ class ElasticaFinger:
         return {
             "history": hist,
             "within_tol": within,
-            "settled": None if settled_at is None else {"wall_s": settled_at[0],
-                                                        "steps": settled_at[1]},
+            "settled": None
+            if settled_at is None
+            else {"wall_s": settled_at[0], "steps": settled_at[1]},
             "tip": hist[-1][2:4],
             "rel_diff": hist[-1][4],
             "steps": steps,

@@ -36,18 +36,31 @@ from finray_jax import _solve
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "reference"))
 
-NAMES = ["E", "front.thickness", "back.thickness", "crossbeam thickness",
-         "front_s[0]", "front_s[1]", "front_s[2]", "front_s[4]", "front_s[5]", "front_s[6]"]
+NAMES = [
+    "E",
+    "front.thickness",
+    "back.thickness",
+    "crossbeam thickness",
+    "front_s[0]",
+    "front_s[1]",
+    "front_s[2]",
+    "front_s[4]",
+    "front_s[5]",
+    "front_s[6]",
+]
 MOVED = np.array([0, 1, 2, 4, 5, 6])
 
 
 def design_vector(finger):
     cb = finger.crossbeams
-    return jnp.concatenate([
-        jnp.stack([finger.material.E, finger.front.thickness, finger.back.thickness,
-                   cb.thickness[0]]),
-        cb.front_s[MOVED],
-    ])
+    return jnp.concatenate(
+        [
+            jnp.stack(
+                [finger.material.E, finger.front.thickness, finger.back.thickness, cb.thickness[0]]
+            ),
+            cb.front_s[MOVED],
+        ]
+    )
 
 
 def finger_of(p, base):
@@ -82,25 +95,36 @@ def finray_gradients(case, repeats):
     y_und = _solve._make_problem(topo, fr.Integrator(), base).undeformed().reshape(-1)
     cold_init = eqx.tree_at(lambda s: s.unknowns, sol0, y_und)
     rows = {}
-    for name, fn in (("forward", fwd), ("value_and_grad_tip_x", vg_tip),
-                     ("value_and_grad_reaction_x", vg_rx), ("jacrev_both", jac)):
+    for name, fn in (
+        ("forward", fwd),
+        ("value_and_grad_tip_x", vg_tip),
+        ("value_and_grad_reaction_x", vg_rx),
+        ("jacrev_both", jac),
+    ):
         t0 = time.perf_counter()
         jax.block_until_ready(fn(p0, cold_init))
         first = time.perf_counter() - t0
         for start, init in (("cold", cold_init), ("warm", sol0)):
-            t, n = median_time(lambda fn=fn, init=init: jax.block_until_ready(fn(p0, init)),
-                               repeats, 0.3)
+            t, n = median_time(
+                lambda fn=fn, init=init: jax.block_until_ready(fn(p0, init)), repeats, 0.3
+            )
             rows.setdefault(start, {})[name] = {"s": t, "repeats": n, "first_call_s": first}
-        print(f"{case} {name}: first call {first:.1f} s, cold {1e3 * rows['cold'][name]['s']:.2f}"
-              f" ms, warm {1e3 * rows['warm'][name]['s']:.2f} ms", flush=True)
+        print(
+            f"{case} {name}: first call {first:.1f} s, cold {1e3 * rows['cold'][name]['s']:.2f}"
+            f" ms, warm {1e3 * rows['warm'][name]['s']:.2f} ms",
+            flush=True,
+        )
     for start, r in rows.items():
         for name in ("value_and_grad_tip_x", "value_and_grad_reaction_x", "jacrev_both"):
             r[name]["ratio_to_forward"] = r[name]["s"] / r["forward"]["s"]
-        print(f"finray_jax {case} {start}: forward {1e3 * r['forward']['s']:.2f} ms, "
-              f"grad tip {1e3 * r['value_and_grad_tip_x']['s']:.2f} ms "
-              f"({r['value_and_grad_tip_x']['ratio_to_forward']:.2f}x), grad reaction "
-              f"{r['value_and_grad_reaction_x']['ratio_to_forward']:.2f}x, jacrev (both) "
-              f"{r['jacrev_both']['ratio_to_forward']:.2f}x", flush=True)
+        print(
+            f"finray_jax {case} {start}: forward {1e3 * r['forward']['s']:.2f} ms, "
+            f"grad tip {1e3 * r['value_and_grad_tip_x']['s']:.2f} ms "
+            f"({r['value_and_grad_tip_x']['ratio_to_forward']:.2f}x), grad reaction "
+            f"{r['value_and_grad_reaction_x']['ratio_to_forward']:.2f}x, jacrev (both) "
+            f"{r['jacrev_both']['ratio_to_forward']:.2f}x",
+            flush=True,
+        )
     J = np.asarray(jac(p0, cold_init))
     y = np.asarray(fwd(p0, cold_init))
     return rows, J, y, np.asarray(p0), base
@@ -128,18 +152,25 @@ def scipy_fd(base, p0, J, y):
         times.append(time.perf_counter() - t0)
         G[:, j] = (np.array([s.tip_displacement[0], s.reaction_front[0]]) - y0) / h[j]
     agree = np.max(np.abs(G - J), axis=1) / np.max(np.abs(J), axis=1)
-    print(f"SciPy FD: base {t_base:.2f} s (cold) + 10 warm perturbed {sum(times):.2f} s; "
-          f"max |FD - implicit| / max |implicit|: tip {agree[0]:.1e}, reaction {agree[1]:.1e}",
-          flush=True)
-    return {"base_cold_s": t_base, "perturbed_warm_s": times, "total_s": t_base + sum(times),
-            "total_warm_base_s": float(np.median(times)) + sum(times),
-            "fd_gradient": G.tolist(), "values": y0.tolist(),
-            "agreement_with_implicit": agree.tolist()}
+    print(
+        f"SciPy FD: base {t_base:.2f} s (cold) + 10 warm perturbed {sum(times):.2f} s; "
+        f"max |FD - implicit| / max |implicit|: tip {agree[0]:.1e}, reaction {agree[1]:.1e}",
+        flush=True,
+    )
+    return {
+        "base_cold_s": t_base,
+        "perturbed_warm_s": times,
+        "total_s": t_base + sum(times),
+        "total_warm_base_s": float(np.median(times)) + sum(times),
+        "fd_gradient": G.tolist(),
+        "values": y0.tolist(),
+        "agreement_with_implicit": agree.tolist(),
+    }
 
 
 def opensees_fd(base, p0, J, h_mesh, case):
-    import openseespy.opensees as ops
     import opensees_ref_a as osr
+    import openseespy.opensees as ops
 
     def solve(E, tf, tb, tc):
         saved = osr.E_MOD, osr.G_MOD, osr.T_FRONT, osr.T_BACK, osr.T_CROSS
@@ -170,28 +201,45 @@ def opensees_fd(base, p0, J, h_mesh, case):
         solve(*q0)
     total = time.perf_counter() - t0
     agree = np.max(np.abs(G - J[:, :4]), axis=1) / np.max(np.abs(J[:, :4]), axis=1)
-    print(f"openseespy FD (h = {h_mesh} mm): 11 solves {total:.2f} s; first four columns vs "
-          f"implicit: tip {agree[0]:.1e}, reaction {agree[1]:.1e}", flush=True)
-    return {"h_mm": h_mesh, "total_s": total, "fd_gradient_first_four": G.tolist(),
-            "agreement_with_implicit_first_four": agree.tolist()}
+    print(
+        f"openseespy FD (h = {h_mesh} mm): 11 solves {total:.2f} s; first four columns vs "
+        f"implicit: tip {agree[0]:.1e}, reaction {agree[1]:.1e}",
+        flush=True,
+    )
+    return {
+        "h_mm": h_mesh,
+        "total_s": total,
+        "fd_gradient_first_four": G.tolist(),
+        "agreement_with_implicit_first_four": agree.tolist(),
+    }
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="L1 only, fewer repeats")
     ap.add_argument("--cases", default=None, help="comma list (default L1,L2)")
-    ap.add_argument("--opensees-h", type=float, default=2.5,
-                    help="openseespy mesh (peers.py's choice: 2.5 mm)")
+    ap.add_argument(
+        "--opensees-h", type=float, default=2.5, help="openseespy mesh (peers.py's choice: 2.5 mm)"
+    )
     args = ap.parse_args()
     cores = pin_to_one_core()
     cases = (args.cases or ("L1" if args.quick else "L1,L2")).split(",")
     repeats = 5 if args.quick else 15
-    out = {"pinned_cores": cores, "machine": machine(), "design_values": NAMES,
-           "outputs": ["tip displacement x", "front base reaction force x"], "cases": {}}
+    out = {
+        "pinned_cores": cores,
+        "machine": machine(),
+        "design_values": NAMES,
+        "outputs": ["tip displacement x", "front base reaction force x"],
+        "cases": {},
+    }
     for case in cases:
         rows, J, y, p0, base = finray_gradients(case, repeats)
-        entry = {"finray_jax": rows, "implicit_jacobian": J.tolist(), "values": y.tolist(),
-                 "design": p0.tolist()}
+        entry = {
+            "finray_jax": rows,
+            "implicit_jacobian": J.tolist(),
+            "values": y.tolist(),
+            "design": p0.tolist(),
+        }
         # check: the tip scales as 1/E (dead loads), so E d(tip)/dE = -tip
         entry["check_E_dtip_dE_plus_tip"] = float(p0[0] * J[0, 0] + y[0])
         sp = scipy_fd(base, p0, J, y)
@@ -208,15 +256,21 @@ def main():
     for case, e in out["cases"].items():
         for start in ("cold", "warm"):
             r = e["finray_jax"][start]
-            print(f"{case} finray_jax {start}: forward {1e3 * r['forward']['s']:8.2f} ms | "
-                  f"grad tip x {1e3 * r['value_and_grad_tip_x']['s']:8.2f} ms "
-                  f"({r['value_and_grad_tip_x']['ratio_to_forward']:.2f}x) | grad reaction x "
-                  f"({r['value_and_grad_reaction_x']['ratio_to_forward']:.2f}x) | both "
-                  f"{1e3 * r['jacrev_both']['s']:8.2f} ms ({r['jacrev_both']['ratio_to_forward']:.2f}x)")
-        print(f"{case} SciPy FD (11 solves): {e['scipy_fd']['total_s']:.2f} s = "
-              f"{e['scipy_fd']['ratio_to_finray_jacrev_cold']:.0f}x finray_jax (both outputs)")
-        print(f"{case} openseespy FD (11 solves): {e['opensees_fd']['total_s']:.2f} s = "
-              f"{e['opensees_fd']['ratio_to_finray_jacrev_cold']:.0f}x finray_jax (both outputs)")
+            print(
+                f"{case} finray_jax {start}: forward {1e3 * r['forward']['s']:8.2f} ms | "
+                f"grad tip x {1e3 * r['value_and_grad_tip_x']['s']:8.2f} ms "
+                f"({r['value_and_grad_tip_x']['ratio_to_forward']:.2f}x) | grad reaction x "
+                f"({r['value_and_grad_reaction_x']['ratio_to_forward']:.2f}x) | both "
+                f"{1e3 * r['jacrev_both']['s']:8.2f} ms ({r['jacrev_both']['ratio_to_forward']:.2f}x)"
+            )
+        print(
+            f"{case} SciPy FD (11 solves): {e['scipy_fd']['total_s']:.2f} s = "
+            f"{e['scipy_fd']['ratio_to_finray_jacrev_cold']:.0f}x finray_jax (both outputs)"
+        )
+        print(
+            f"{case} openseespy FD (11 solves): {e['opensees_fd']['total_s']:.2f} s = "
+            f"{e['opensees_fd']['ratio_to_finray_jacrev_cold']:.0f}x finray_jax (both outputs)"
+        )
     path = write("gradients", out)
     print(f"wrote {path}")
 

@@ -11,12 +11,11 @@ import argparse
 import time
 
 import jax
+from _common import machine, median_time, pin_to_one_core, write  # noqa: I001
 
 import finray_jax as fr
 from finray_jax import io as fio
 from finray_jax.studies import MODIFIED, with_adaptor, with_object
-
-from _common import machine, median_time, pin_to_one_core, write  # noqa: I001
 
 
 def main():

@@ -28,10 +28,9 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import machine, pin_to_one_core, write  # noqa: I001
 
 from finray_jax import optimizer as O
-
-from _common import machine, pin_to_one_core, write  # noqa: I001
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "optimize_clamp.toml")
 

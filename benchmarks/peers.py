@@ -25,7 +25,6 @@ Run:  taskset -c 1 .venv/bin/python benchmarks/peers.py [--quick]
 
 import argparse
 import json
-import math
 import pathlib
 import statistics
 import sys
@@ -40,8 +39,9 @@ import finray_jax as fr
 
 # Compile times are not reported here (solve.py and scaling.py do that): keep compiled
 # solvers between runs of this script.
-jax.config.update("jax_compilation_cache_dir",
-                  str(pathlib.Path.home() / ".cache" / "finray_jax_bench"))
+jax.config.update(
+    "jax_compilation_cache_dir", str(pathlib.Path.home() / ".cache" / "finray_jax_bench")
+)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -118,8 +118,8 @@ def finray_rows(repeats):
 def opensees_solve(h, case, nsteps, tol=1e-8):
     """Build ref-A on mesh h and solve `case` in nsteps load steps (None if no
     convergence). The builder is tests/reference/opensees_ref_a.py."""
-    import openseespy.opensees as ops
     import opensees_ref_a as osr
+    import openseespy.opensees as ops
 
     fg = osr.Finger(h, 5.0 / 6.0)
     fg.apply_pattern(case)
@@ -146,13 +146,20 @@ def opensees_rows(ref_tips, repeats):
         per = {}
         for case in CASES:
             n, tip, fg = fewest_steps(h, case)
-            per[case] = {"load_steps": n, "tip": tip.tolist(), "agreement": rel(tip, ref_tips[case]),
-                         "elements": fg.n_elements}
+            per[case] = {
+                "load_steps": n,
+                "tip": tip.tolist(),
+                "agreement": rel(tip, ref_tips[case]),
+                "elements": fg.n_elements,
+            }
         meshes[h] = per
         ok = all(p["agreement"] < TOL for p in per.values())
-        print(f"openseespy h={h}: elements {per['L1']['elements']}, agreement "
-              + ", ".join(f"{c} {p['agreement']:.2e}" for c, p in per.items())
-              + (" (meets 0.5 %)" if ok else ""), flush=True)
+        print(
+            f"openseespy h={h}: elements {per['L1']['elements']}, agreement "
+            + ", ".join(f"{c} {p['agreement']:.2e}" for c, p in per.items())
+            + (" (meets 0.5 %)" if ok else ""),
+            flush=True,
+        )
         if ok and chosen is None:
             chosen = h
             break
@@ -164,14 +171,25 @@ def opensees_rows(ref_tips, repeats):
             t, k = median_time(lambda: opensees_solve(h, case, n), repeats, 0.5)
             tip, fg = opensees_solve(h, case, n)
             rows[(h, case)] = {
-                "case": case, "h_mm": h, "elements": fg.n_elements, "load_steps": n,
-                "solve_s": t, "repeats": k, "tip": tip.tolist(),
-                "agreement": rel(tip, ref_tips[case]), "chosen_mesh": h == chosen,
+                "case": case,
+                "h_mm": h,
+                "elements": fg.n_elements,
+                "load_steps": n,
+                "solve_s": t,
+                "repeats": k,
+                "tip": tip.tolist(),
+                "agreement": rel(tip, ref_tips[case]),
+                "chosen_mesh": h == chosen,
             }
-            print(f"openseespy h={h} {case}: {1e3 * t:8.1f} ms ({n} load steps, "
-                  f"{fg.n_elements} el.)  agreement {rows[(h, case)]['agreement']:.2e}", flush=True)
-    note = ("model build + static load-control analysis (Newton, NormDispIncr 1e-8, UmfPack), "
-            f"builder {osr.__file__.split('/')[-1]}")
+            print(
+                f"openseespy h={h} {case}: {1e3 * t:8.1f} ms ({n} load steps, "
+                f"{fg.n_elements} el.)  agreement {rows[(h, case)]['agreement']:.2e}",
+                flush=True,
+            )
+    note = (
+        "model build + static load-control analysis (Newton, NormDispIncr 1e-8, UmfPack), "
+        f"builder {osr.__file__.split('/')[-1]}"
+    )
     return rows, chosen, meshes, note
 
 
@@ -186,35 +204,51 @@ def scipy_rows(ref_tips, budget):
         runs = [model.solve(budget_s=budget) for _ in range(3 if case == "L1" else 1)]
         sol = runs[-1]
         if not sol.ok:
-            rows[case] = {"case": case, "ok": False, "budget_s": budget,
-                          "load_factor_reached": sol.load_factor, "wall_s": sol.seconds,
-                          "load_levels": sol.load_steps, "root_calls": sol.root_calls,
-                          "residual_evaluations": sol.residual_evaluations}
-            print(f"SciPy {case}: not finished within {budget:.0f} s (load factor "
-                  f"{sol.load_factor:.3f} reached, {sol.residual_evaluations} residuals)",
-                  flush=True)
+            rows[case] = {
+                "case": case,
+                "ok": False,
+                "budget_s": budget,
+                "load_factor_reached": sol.load_factor,
+                "wall_s": sol.seconds,
+                "load_levels": sol.load_steps,
+                "root_calls": sol.root_calls,
+                "residual_evaluations": sol.residual_evaluations,
+            }
+            print(
+                f"SciPy {case}: not finished within {budget:.0f} s (load factor "
+                f"{sol.load_factor:.3f} reached, {sol.residual_evaluations} residuals)",
+                flush=True,
+            )
             continue
         cold = statistics.median(r.seconds for r in runs)
         warm_model = ShootingModel.from_finger(thicker_back(finger))
         wruns = [warm_model.solve(guess=sol.unknowns, budget_s=budget) for _ in range(3)]
         rows[case] = {
-            "case": case, "ok": sol.ok, "budget_s": budget, "cold_s": cold,
+            "case": case,
+            "ok": sol.ok,
+            "budget_s": budget,
+            "cold_s": cold,
             "cold_runs": len(runs),
-            "load_levels": sol.load_steps, "root_calls": sol.root_calls,
+            "load_levels": sol.load_steps,
+            "root_calls": sol.root_calls,
             "residual_evaluations": sol.residual_evaluations,
             "seconds_per_residual": sol.seconds / sol.residual_evaluations,
             "warm_s": statistics.median(r.seconds for r in wruns),
             "warm_ok": all(r.ok for r in wruns),
             "warm_root_calls": wruns[-1].root_calls,
             "warm_residual_evaluations": wruns[-1].residual_evaluations,
-            "tip": sol.tip_displacement.tolist(), "agreement": rel(sol.tip_displacement,
-                                                                  ref_tips[case]),
-            "unknowns": model.n_unknowns, "steps_per_piece": model.steps,
+            "tip": sol.tip_displacement.tolist(),
+            "agreement": rel(sol.tip_displacement, ref_tips[case]),
+            "unknowns": model.n_unknowns,
+            "steps_per_piece": model.steps,
             "method": model.method,
         }
-        print(f"SciPy {case}: cold {cold:8.2f} s ({sol.load_steps} load levels, "
-              f"{sol.residual_evaluations} residuals)  warm {rows[case]['warm_s']:.3f} s  "
-              f"agreement {rows[case]['agreement']:.2e}", flush=True)
+        print(
+            f"SciPy {case}: cold {cold:8.2f} s ({sol.load_steps} load levels, "
+            f"{sol.residual_evaluations} residuals)  warm {rows[case]['warm_s']:.3f} s  "
+            f"agreement {rows[case]['agreement']:.2e}",
+            flush=True,
+        )
     return rows
 
 
@@ -234,10 +268,16 @@ def elastica_rows(ref_tips, budget, dx):
         out = fe.relax(budget, reference_tip=ref_tips[case], chunk=2500, tol=TOL, settle=1e-5)
         within = out["within_tol"]
         rows[case] = {
-            "case": case, "dx_mm": dx, "elements": fe.n_elements, "build_s": build,
-            "budget_s": budget, "steps": out["steps"], "dt": out["dt"],
+            "case": case,
+            "dx_mm": dx,
+            "elements": fe.n_elements,
+            "build_s": build,
+            "budget_s": budget,
+            "steps": out["steps"],
+            "dt": out["dt"],
             "time_per_step_ms": out["time_per_step_us"] / 1e3,
-            "wall_s": out["wall_s"], "final_tip": list(out["tip"]),
+            "wall_s": out["wall_s"],
+            "final_tip": list(out["tip"]),
             "final_agreement": out["rel_diff"],
             "reached_0.5pct_s": None if within is None else within["wall_s"] + build,
             "reached_0.5pct_steps": None if within is None else within["steps"],
@@ -245,10 +285,13 @@ def elastica_rows(ref_tips, budget, dx):
             "history": [[round(v, 7) for v in h] for h in out["history"]],
         }
         r = rows[case]
-        print(f"PyElastica {case}: {fe.n_elements} el., {out['steps']} steps in "
-              f"{out['wall_s']:.0f} s ({r['time_per_step_ms']:.2f} ms/step), final agreement "
-              f"{out['rel_diff']:.2e}, within 0.5 % after "
-              + ("never" if within is None else f"{r['reached_0.5pct_s']:.0f} s"), flush=True)
+        print(
+            f"PyElastica {case}: {fe.n_elements} el., {out['steps']} steps in "
+            f"{out['wall_s']:.0f} s ({r['time_per_step_ms']:.2f} ms/step), final agreement "
+            f"{out['rel_diff']:.2e}, within 0.5 % after "
+            + ("never" if within is None else f"{r['reached_0.5pct_s']:.0f} s"),
+            flush=True,
+        )
     return rows
 
 
@@ -256,13 +299,22 @@ def elastica_rows(ref_tips, budget, dx):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--elastica-budget", type=float, default=None,
-                    help="wall seconds per case (default 240, --quick 60)")
+    ap.add_argument(
+        "--elastica-budget",
+        type=float,
+        default=None,
+        help="wall seconds per case (default 240, --quick 60)",
+    )
     ap.add_argument("--elastica-dx", type=float, default=1.25)
-    ap.add_argument("--scipy-budget", type=float, default=None,
-                    help="wall seconds per SciPy cold solve (default 300, --quick 30)")
-    ap.add_argument("--skip", default="", help="comma list of peers to skip: "
-                    "opensees,scipy,elastica")
+    ap.add_argument(
+        "--scipy-budget",
+        type=float,
+        default=None,
+        help="wall seconds per SciPy cold solve (default 300, --quick 30)",
+    )
+    ap.add_argument(
+        "--skip", default="", help="comma list of peers to skip: opensees,scipy,elastica"
+    )
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     cores = pin_to_one_core()
@@ -275,14 +327,21 @@ def main():
     ref_tips = {c: fj[("planar", c)]["tip"] for c in CASES}
     base = {c: fj[("planar", c)]["cold_s"] for c in CASES}
 
-    out = {"pinned_cores": cores, "machine": machine(), "quick": args.quick,
-           "agreement_metric": "|tip - tip_finray_planar| / |tip_finray_planar| on (dx, dz)",
-           "finray_jax": [dict(r) for r in fj.values()]}
+    out = {
+        "pinned_cores": cores,
+        "machine": machine(),
+        "quick": args.quick,
+        "agreement_metric": "|tip - tip_finray_planar| / |tip_finray_planar| on (dx, dz)",
+        "finray_jax": [dict(r) for r in fj.values()],
+    }
     if "opensees" not in skip:
         os_rows, chosen, meshes, note = opensees_rows(ref_tips, max(3, repeats // 3))
-        out["openseespy"] = {"chosen_h_mm": chosen, "note": note,
-                             "mesh_search": {str(h): v for h, v in meshes.items()},
-                             "rows": list(os_rows.values())}
+        out["openseespy"] = {
+            "chosen_h_mm": chosen,
+            "note": note,
+            "mesh_search": {str(h): v for h, v in meshes.items()},
+            "rows": list(os_rows.values()),
+        }
         for r in os_rows.values():
             r["ratio_to_finray_planar_cold"] = r["solve_s"] / base[r["case"]]
     if "scipy" not in skip:
@@ -291,7 +350,8 @@ def main():
             if "cold_s" in r:
                 r["ratio_to_finray_planar_cold"] = r["cold_s"] / base[r["case"]]
                 r["warm_ratio_to_finray_planar_warm"] = (
-                    r["warm_s"] / fj[("planar", r["case"])]["warm_s"])
+                    r["warm_s"] / fj[("planar", r["case"])]["warm_s"]
+                )
         out["scipy"] = list(sp.values())
     if "elastica" not in skip:
         el = elastica_rows(ref_tips, budget, args.elastica_dx)
@@ -314,34 +374,73 @@ def main():
 
     for case in CASES:
         p, s = fj[("planar", case)], fj[("spatial", case)]
-        line("finray_jax planar cold", case, p["cold_s"], 1.0,
-             p["agreement_vs_fine_opensees_2432_el"])
-        line("finray_jax planar warm (1 % design change)", case, p["warm_s"],
-             p["warm_s"] / base[case], None)
-        line("finray_jax 3-D cold", case, s["cold_s"], s["cold_s"] / base[case],
-             s["agreement_vs_planar"])
+        line(
+            "finray_jax planar cold",
+            case,
+            p["cold_s"],
+            1.0,
+            p["agreement_vs_fine_opensees_2432_el"],
+        )
+        line(
+            "finray_jax planar warm (1 % design change)",
+            case,
+            p["warm_s"],
+            p["warm_s"] / base[case],
+            None,
+        )
+        line(
+            "finray_jax 3-D cold",
+            case,
+            s["cold_s"],
+            s["cold_s"] / base[case],
+            s["agreement_vs_planar"],
+        )
         line("finray_jax 3-D warm", case, s["warm_s"], s["warm_s"] / base[case], None)
         if "openseespy" in out:
             for r in out["openseespy"]["rows"]:
                 if r["case"] == case:
-                    line(f"openseespy h={r['h_mm']} ({r['elements']} el., {r['load_steps']} st.)",
-                         case, r["solve_s"], r["ratio_to_finray_planar_cold"], r["agreement"])
+                    line(
+                        f"openseespy h={r['h_mm']} ({r['elements']} el., {r['load_steps']} st.)",
+                        case,
+                        r["solve_s"],
+                        r["ratio_to_finray_planar_cold"],
+                        r["agreement"],
+                    )
         if "scipy" in out:
             for r in out["scipy"]:
                 if r["case"] == case and "cold_s" in r:
-                    line("SciPy single shooting cold", case, r["cold_s"],
-                         r["ratio_to_finray_planar_cold"], r["agreement"])
-                    line("SciPy single shooting warm", case, r["warm_s"],
-                         r["warm_s"] / base[case], None)
+                    line(
+                        "SciPy single shooting cold",
+                        case,
+                        r["cold_s"],
+                        r["ratio_to_finray_planar_cold"],
+                        r["agreement"],
+                    )
+                    line(
+                        "SciPy single shooting warm",
+                        case,
+                        r["warm_s"],
+                        r["warm_s"] / base[case],
+                        None,
+                    )
                 elif r["case"] == case:
-                    line(f"SciPy: > {r['budget_s']:.0f} s (load {r['load_factor_reached']:.2f})",
-                         case, None, None, None)
+                    line(
+                        f"SciPy: > {r['budget_s']:.0f} s (load {r['load_factor_reached']:.2f})",
+                        case,
+                        None,
+                        None,
+                        None,
+                    )
         if "pyelastica" in out:
             for r in out["pyelastica"]:
                 if r["case"] == case:
-                    line(f"PyElastica to 0.5 % ({r['elements']} el.)", case,
-                         r["reached_0.5pct_s"], r["ratio_to_finray_planar_cold"],
-                         r["final_agreement"])
+                    line(
+                        f"PyElastica to 0.5 % ({r['elements']} el.)",
+                        case,
+                        r["reached_0.5pct_s"],
+                        r["ratio_to_finray_planar_cold"],
+                        r["final_agreement"],
+                    )
     path = write("peers", out)
     print(f"wrote {path} ({out['total_seconds']:.0f} s)")
 

@@ -34,27 +34,36 @@ def finger_with_crossbeams(n):
     lb = float(np.hypot(40.0, 120.0))
     base = fr.ref_finger_a("L1")
     return fr.Finger(
-        material=base.material, front_base=(0.0, 0.0), back_base=(40.0, 0.0), tip=(0.0, 120.0),
-        front=base.front, back=base.back,
+        material=base.material,
+        front_base=(0.0, 0.0),
+        back_base=(40.0, 0.0),
+        tip=(0.0, 120.0),
+        front=base.front,
+        back=base.back,
         crossbeams=fr.Crossbeams(z, z * lb / 120.0, np.full(n, 1.0), np.full(n, 20.0)),
-        adaptor=base.adaptor, loads=base.loads,
+        adaptor=base.adaptor,
+        loads=base.loads,
     )
 
 
 def time_solve(finger, mode, integrator, repeats):
     topo = fr.topology_of(finger, mode)
     opts = fr.SolverOptions()
-    run = lambda: jax.block_until_ready(
-        _solve._direct_core(topo, integrator, opts, finger, None))
+    run = lambda: jax.block_until_ready(_solve._direct_core(topo, integrator, opts, finger, None))
     t0 = time.perf_counter()
     sol, ok = run()
     first = time.perf_counter() - t0
     t, n = median_time(run, repeats, 0.3)
     unknowns = topo.n_segments * topo.model.n_unknown
     return {
-        "segments": topo.n_segments, "unknowns": unknowns, "ok": bool(ok),
-        "iterations": int(sol.iterations), "compile_s": first - t, "solve_s": t,
-        "per_iteration_s": t / max(int(sol.iterations), 1), "repeats": n,
+        "segments": topo.n_segments,
+        "unknowns": unknowns,
+        "ok": bool(ok),
+        "iterations": int(sol.iterations),
+        "compile_s": first - t,
+        "solve_s": t,
+        "per_iteration_s": t / max(int(sol.iterations), 1),
+        "repeats": n,
         "tip": np.asarray(sol.tip.displacement)[[0, 2]].tolist(),
     }
 
@@ -78,8 +87,11 @@ def floor(repeats):
     @jax.jit
     def many(y0):
         f = lambda t, yy: md.rhs(t, yy, q)
-        return lax.scan(lambda yy, i: (_rk_step(integ.solver.tableau, f, 0.0, yy, 1e-3), None),
-                        y0, jnp.arange(n_steps))[0]
+        return lax.scan(
+            lambda yy, i: (_rk_step(integ.solver.tableau, f, 0.0, yy, 1e-3), None),
+            y0,
+            jnp.arange(n_steps),
+        )[0]
 
     y0 = problem.start_states(y.reshape(S, -1))[0]
     jax.block_until_ready(many(y0))
@@ -87,12 +99,16 @@ def floor(repeats):
     out["rk_step_s"] = t / n_steps
 
     from finray_jax._rod import segment_flow
+
     starts = problem.start_states(y.reshape(S, -1))
     Q = problem.params(lam)
     flow = jax.jit(lambda Y0, Q: segment_flow(md, integ, Y0, Q))
     resid = jax.jit(lambda y: _solve._natural_fn(y, (problem, lam)))
-    jacres = jax.jit(lambda y: jax.jacfwd(lambda v: (lambda o: (o, o))(
-        _solve._natural_fn(v, (problem, lam))), has_aux=True)(y))
+    jacres = jax.jit(
+        lambda y: jax.jacfwd(
+            lambda v: (lambda o: (o, o))(_solve._natural_fn(v, (problem, lam))), has_aux=True
+        )(y)
+    )
     J, _ = jacres(y)
 
     @jax.jit
@@ -102,17 +118,22 @@ def floor(repeats):
 
     @jax.jit
     def iteration(y):  # what one Newton iteration of _newton_lean does, less the bookkeeping
-        J, r = jax.jacfwd(lambda v: (lambda o: (o, o))(
-            _solve._natural_fn(v, (problem, lam))), has_aux=True)(y)
+        J, r = jax.jacfwd(
+            lambda v: (lambda o: (o, o))(_solve._natural_fn(v, (problem, lam))), has_aux=True
+        )(y)
         return y - lu_solve(J, r)
 
-    for name, fn, args in (("segment_flow_s", flow, (starts, Q)), ("residual_s", resid, (y,)),
-                           ("residual_and_jacobian_s", jacres, (y,)),
-                           ("lu_factor_and_solve_s", lu_solve, (J, y)),
-                           ("newton_iteration_s", iteration, (y,))):
+    for name, fn, args in (
+        ("segment_flow_s", flow, (starts, Q)),
+        ("residual_s", resid, (y,)),
+        ("residual_and_jacobian_s", jacres, (y,)),
+        ("lu_factor_and_solve_s", lu_solve, (J, y)),
+        ("newton_iteration_s", iteration, (y,)),
+    ):
         jax.block_until_ready(fn(*args))
-        out[name], _ = median_time(lambda fn=fn, args=args: jax.block_until_ready(fn(*args)),
-                                   repeats, 0.3)
+        out[name], _ = median_time(
+            lambda fn=fn, args=args: jax.block_until_ready(fn(*args)), repeats, 0.3
+        )
     # Work count of one iteration: Tsit5 has 6 stages per step; the Jacobian is formed by
     # forward mode through every segment (6 state + parameter tangents at once).
     out["rhs_evaluations_per_flow"] = S * integ.steps * 6
@@ -138,21 +159,31 @@ def main():
             r = time_solve(finger_with_crossbeams(n), mode, fr.Integrator(), repeats)
             r.update(mode=mode, crossbeams=n)
             out["crossbeams"].append(r)
-            print(f"{mode} {n:3d} crossbeams: {r['segments']:4d} segments, {r['unknowns']:5d} "
-                  f"unknowns, compile {r['compile_s']:6.1f} s, solve {1e3 * r['solve_s']:8.2f} ms"
-                  f" ({r['iterations']} it, {1e3 * r['per_iteration_s']:.2f} ms/it)", flush=True)
+            print(
+                f"{mode} {n:3d} crossbeams: {r['segments']:4d} segments, {r['unknowns']:5d} "
+                f"unknowns, compile {r['compile_s']:6.1f} s, solve {1e3 * r['solve_s']:8.2f} ms"
+                f" ({r['iterations']} it, {1e3 * r['per_iteration_s']:.2f} ms/it)",
+                flush=True,
+            )
         for k in steps:
             r = time_solve(fr.ref_finger_a("L1"), mode, fr.Integrator(steps=k), repeats)
             r.update(mode=mode, steps_per_segment=k)
             out["steps"].append(r)
-            print(f"{mode} steps {k:3d}: compile {r['compile_s']:6.1f} s, solve "
-                  f"{1e3 * r['solve_s']:8.2f} ms ({r['iterations']} it, "
-                  f"{1e3 * r['per_iteration_s']:.2f} ms/it), tip {r['tip']}", flush=True)
+            print(
+                f"{mode} steps {k:3d}: compile {r['compile_s']:6.1f} s, solve "
+                f"{1e3 * r['solve_s']:8.2f} ms ({r['iterations']} it, "
+                f"{1e3 * r['per_iteration_s']:.2f} ms/it), tip {r['tip']}",
+                flush=True,
+            )
     fl = floor(repeats)
     out["floor_ref_a_L1_planar"] = fl
-    print("floor (ref-A L1 planar, one piece at a time): "
-          + ", ".join(f"{k} {v * 1e6:.1f} us" if k.endswith("_s") else f"{k} {v:.3g}"
-                      for k, v in fl.items()), flush=True)
+    print(
+        "floor (ref-A L1 planar, one piece at a time): "
+        + ", ".join(
+            f"{k} {v * 1e6:.1f} us" if k.endswith("_s") else f"{k} {v:.3g}" for k, v in fl.items()
+        ),
+        flush=True,
+    )
     path = write("scaling", out)
     print(f"wrote {path}")
 

@@ -56,13 +56,24 @@ _T = (
     (-0.008480655492356989, 0.335480655492357),
     (2.897153057105493, -6.359448489975075, 4.3622954328695815),
     (5.325864828439257, -11.748883564062828, 7.4955393428898365, -0.09249506636175525),
-    (5.86145544294642, -12.92096931784711, 8.159367898576159, -0.071584973281401,
-     -0.028269050394068383),
+    (
+        5.86145544294642,
+        -12.92096931784711,
+        8.159367898576159,
+        -0.071584973281401,
+        -0.028269050394068383,
+    ),
 )
 TSIT5 = (
     _T,
-    (0.09646076681806523, 0.01, 0.4798896504144996, 1.379008574103742, -3.290069515436081,
-     2.324710524099774),
+    (
+        0.09646076681806523,
+        0.01,
+        0.4798896504144996,
+        1.379008574103742,
+        -3.290069515436081,
+        2.324710524099774,
+    ),
     (0.0, 0.161, 0.327, 0.9, 0.9800255409045097, 1.0),
 )
 METHODS = {"rk4": RK4, "tsit5": TSIT5}
@@ -222,15 +233,25 @@ class ShootingModel:
                 dists.append((float(s0), float(s1), float(q[0]), float(q[2])))
         sf = stiff(f(finger.front.thickness), f(finger.front.depth))
         return cls(
-            front_base=tuple(fb), back_base=tuple(bb), front_theta=thf, back_theta=thb,
-            front_length=lf, back_length=lb, front_stiff=sf,
+            front_base=tuple(fb),
+            back_base=tuple(bb),
+            front_theta=thf,
+            back_theta=thb,
+            front_length=lf,
+            back_length=lb,
+            front_stiff=sf,
             back_stiff=stiff(f(finger.back.thickness), f(finger.back.depth)),
-            cb_front_s=tuple(fs), cb_back_s=tuple(bs),
+            cb_front_s=tuple(fs),
+            cb_back_s=tuple(bs),
             cb_theta=tuple(math.atan2(dx, dz) for dx, dz in d),
             cb_length=tuple(np.linalg.norm(d, axis=1)),
             cb_stiff=tuple(stiff(t, dd) for t, dd in zip(arr(cb.thickness), arr(cb.depth))),
-            point_loads=tuple(points), dist_loads=tuple(dists),
-            F=sf[2] / lf**2, L=lf, steps=steps, method=method,
+            point_loads=tuple(points),
+            dist_loads=tuple(dists),
+            F=sf[2] / lf**2,
+            L=lf,
+            steps=steps,
+            method=method,
         )
 
     @property
@@ -256,8 +277,9 @@ class ShootingModel:
         wc = w[6:].reshape(-1, 3)
         meth = METHODS[self.method]
         n, L, F = self.steps, self.L, self.F
-        dist = lambda s0, s1: [(q[2] * lam, q[3] * lam) for q in self.dist_loads
-                               if q[0] <= s0 and s1 <= q[1]]
+        dist = lambda s0, s1: [
+            (q[2] * lam, q[3] * lam) for q in self.dist_loads if q[0] <= s0 and s1 <= q[1]
+        ]
 
         # Events on the front beam: crossbeam starts, point loads, ends of distributed loads.
         events = [(s, 1, ("cb", i)) for i, s in enumerate(self.cb_front_s)]
@@ -285,8 +307,10 @@ class ShootingModel:
         front_tip = y
 
         # 2. crossbeams from the front beam to the back beam
-        cb_end = [integrate(cb_start[j], self.cb_length[j], n, self.cb_stiff[j], (0.0, 0.0), meth)
-                  for j in range(self.n_crossbeams)]
+        cb_end = [
+            integrate(cb_start[j], self.cb_length[j], n, self.cb_stiff[j], (0.0, 0.0), meth)
+            for j in range(self.n_crossbeams)
+        ]
 
         # 3. back beam from its clamped base; crossbeam end wrenches act on it as jumps
         res = []
@@ -297,16 +321,21 @@ class ShootingModel:
             s = se
             x, z, th, nx, nz, my = y
             xe, ze, the, nxe, nze, mye = cb_end[j]
-            res += [(xe - x) / L, (ze - z) / L,
-                    (the - th) - (self.cb_theta[j] - self.back_theta)]
+            res += [(xe - x) / L, (ze - z) / L, (the - th) - (self.cb_theta[j] - self.back_theta)]
             y = (x, z, th, nx + nxe, nz + nze, my + mye)
         y = integrate(y, self.back_length - s, n, self.back_stiff, (0.0, 0.0), meth)
 
         # 4. tip: same point, same relative angle, wrench balance
         xf, zf, thf, nxf, nzf, myf = front_tip
         xb, zb, thb, nxb, nzb, myb = y
-        res += [(xb - xf) / L, (zb - zf) / L, (thb - thf) - (self.back_theta - self.front_theta),
-                (nxf + nxb) / F, (nzf + nzb) / F, (myf + myb) / (F * L)]
+        res += [
+            (xb - xf) / L,
+            (zb - zf) / L,
+            (thb - thf) - (self.back_theta - self.front_theta),
+            (nxf + nxb) / F,
+            (nzf + nzb) / F,
+            (myf + myb) / (F * L),
+        ]
         return np.asarray(res), front_tip, wf, wb
 
     def residual(self, u, lam=1.0):
@@ -348,8 +377,13 @@ class ShootingModel:
         return self._solution(u, True, counts, t0)
 
     def _root(self, u0, lam, counts, maxfev=None):
-        sol = optimize.root(self.residual, u0, args=(lam,), method="hybr",
-                            options={"xtol": self.xtol, "maxfev": maxfev or self.maxfev})
+        sol = optimize.root(
+            self.residual,
+            u0,
+            args=(lam,),
+            method="hybr",
+            options={"xtol": self.xtol, "maxfev": maxfev or self.maxfev},
+        )
         counts["nfev"] += sol.nfev
         counts["calls"] += 1
         # hybrd may stop with "not making good progress" at a root already accurate to
@@ -360,19 +394,25 @@ class ShootingModel:
     def _solution(self, u, ok, counts, t0, lam=1.0):
         r, tip, wf, wb = self.sweep(u, lam)
         x0, z0 = self.front_base
-        tip0 = (x0 + self.front_length * math.sin(self.front_theta),
-                z0 + self.front_length * math.cos(self.front_theta))
+        tip0 = (
+            x0 + self.front_length * math.sin(self.front_theta),
+            z0 + self.front_length * math.cos(self.front_theta),
+        )
         return ShootingSolution(
-            ok=ok, unknowns=u,
+            ok=ok,
+            unknowns=u,
             tip_displacement=np.array([tip[0] - tip0[0], tip[1] - tip0[1]]),
             tip_rotation_about_y=tip[2] - self.front_theta,
             # The clamp applies -(n(0), m(0)) to the beam (finray_jax's Reaction); my is the
             # y component of m.
             reaction_front=-np.asarray(wf),
             reaction_back=-np.asarray(wb),
-            max_residual=float(np.max(np.abs(r))), load_factor=lam,
-            load_steps=counts["levels"], root_calls=counts["calls"],
-            residual_evaluations=counts["nfev"], seconds=time.perf_counter() - t0,
+            max_residual=float(np.max(np.abs(r))),
+            load_factor=lam,
+            load_steps=counts["levels"],
+            root_calls=counts["calls"],
+            residual_evaluations=counts["nfev"],
+            seconds=time.perf_counter() - t0,
         )
 
 
@@ -382,6 +422,12 @@ if __name__ == "__main__":
     for case in ("L1", "L2", "L3"):
         model = ShootingModel.from_finger(fr.ref_finger_a(case))
         sol = model.solve()
-        print(case, sol.ok, sol.tip_displacement, sol.reaction_front, f"{sol.seconds:.2f} s",
-              f"{sol.load_steps} levels, {sol.root_calls} root calls, "
-              f"{sol.residual_evaluations} residuals, max|r| {sol.max_residual:.1e}")
+        print(
+            case,
+            sol.ok,
+            sol.tip_displacement,
+            sol.reaction_front,
+            f"{sol.seconds:.2f} s",
+            f"{sol.load_steps} levels, {sol.root_calls} root calls, "
+            f"{sol.residual_evaluations} residuals, max|r| {sol.max_residual:.1e}",
+        )

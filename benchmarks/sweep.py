@@ -15,11 +15,10 @@ import tempfile
 import time
 
 import jax
+from _common import machine, median_time, pin_to_one_core, write  # noqa: I001
 
 import finray_jax as fr
 from finray_jax import sweep as fsweep
-
-from _common import machine, median_time, pin_to_one_core, write  # noqa: I001
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -43,8 +42,9 @@ def main():
 
     marks = []
     t0 = time.perf_counter()
-    run = fsweep.run_sweep(sw, out, plot=True, after_chunk=lambda done: marks.append(
-        (done, time.perf_counter() - t0)))
+    run = fsweep.run_sweep(
+        sw, out, plot=True, after_chunk=lambda done: marks.append((done, time.perf_counter() - t0))
+    )
     total = time.perf_counter() - t0
     first_done, first_t = marks[0]
     steady = (marks[-1][1] - first_t) / max(marks[-1][0] - first_done, 1)

@@ -6,13 +6,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import global_balance
 
 import finray_jax as fr
 import finray_jax.io
 from finray_jax._contact import penalty
 from finray_jax._grasp import _Stepper
-
-from helpers import global_balance
 
 # ---------------------------------------------------------------------------------------
 # Objects and the penalty law
@@ -268,7 +267,9 @@ def test_balance_helper_agrees_for_loads_only(finger1):
 
 def test_bad_input_is_named(finger1):
     with pytest.raises(fr.FingerError, match=r"objects\[0\] \(circle\) overlaps the front beam"):
-        fr.validate_finger(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-1.0, 60.0), 9.0),)))
+        fr.validate_finger(
+            eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-1.0, 60.0), 9.0),))
+        )
     with pytest.raises(fr.FingerError, match=r"objects\[0\] \(circle\) is outside the reach"):
         fr.grasp(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-20.0, 200.0), 9.0),)), 5.0)
     with pytest.raises(fr.FingerError, match=r"objects\[0\] \(circle\) lies behind"):
@@ -282,7 +283,9 @@ def test_bad_input_is_named(finger1):
             )
         )
     with pytest.raises(fr.FingerError, match=r"objects\[0\].radius must be positive"):
-        fr.validate_finger(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-11.0, 60.0), -1.0),)))
+        fr.validate_finger(
+            eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-11.0, 60.0), -1.0),))
+        )
     with pytest.raises(fr.FingerError, match=r"convex polygon"):
         bad = fr.Polygon([[0.0, 0.0], [0.0, 3.0], [3.0, 0.0]], (-20.0, 60.0))  # clockwise
         fr.validate_finger(eqx.tree_at(lambda f: f.objects, finger1, (bad,)))

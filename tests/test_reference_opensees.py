@@ -26,7 +26,9 @@ REF = json.loads(DATA.read_text())
 
 @pytest.fixture(scope="module")
 def solutions():
-    return {case: fr.solve_finger(fr.ref_finger_a(case), mode="planar") for case in ("L1", "L2", "L3")}
+    return {
+        case: fr.solve_finger(fr.ref_finger_a(case), mode="planar") for case in ("L1", "L2", "L3")
+    }
 
 
 def _sample(beam, s_query):

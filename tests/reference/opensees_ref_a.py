@@ -61,13 +61,12 @@ import datetime
 import json
 import math
 import platform
-import sys
 import time
 from importlib import metadata
 
 import numpy as np
 import openseespy.opensees as ops
-from scipy import interpolate, optimize, special, integrate
+from scipy import integrate, interpolate, optimize, special
 
 # ----------------------------------------------------------------------------- data
 E_MOD = 12.0
@@ -96,7 +95,7 @@ def area(t):
 
 
 def inertia(t):
-    return DEPTH * t ** 3 / 12.0
+    return DEPTH * t**3 / 12.0
 
 
 # ----------------------------------------------------------------------------- model
@@ -125,8 +124,12 @@ class Finger:
 
     def __init__(self, h, shear_k, geom="Corotational"):
         n = round(L_FRONT / h)
-        if abs(n * h - L_FRONT) > 1e-9 or abs(10.0 / h - round(10.0 / h)) > 1e-9 \
-                or abs(15.0 / h - round(15.0 / h)) > 1e-9 or n % 8:
+        if (
+            abs(n * h - L_FRONT) > 1e-9
+            or abs(10.0 / h - round(10.0 / h)) > 1e-9
+            or abs(15.0 / h - round(15.0 / h)) > 1e-9
+            or n % 8
+        ):
             raise ValueError(f"element size {h} must divide 10 and 15 (and 120/h % 8 == 0)")
         self.h = h
         self.n = n
@@ -222,12 +225,18 @@ class Finger:
         xb_lin[-1], zb_lin[-1] = bx[-1], bz[-1]
         out["back"] = {"s": sb.tolist(), "x": xb_lin.tolist(), "z": zb_lin.tolist()}
         out["back_interpolation"] = "linear in s between nodes (node spacing %.6f mm)" % (
-            L_BACK / self.n)
+            L_BACK / self.n
+        )
         out["back_interpolation_max_diff_mm"] = float(
-            np.max(np.hypot(xb_lin - xb_spl, zb_lin - zb_spl)))
+            np.max(np.hypot(xb_lin - xb_spl, zb_lin - zb_spl))
+        )
         rot = ops.nodeDisp(self.tip, 3)
-        out["tip"] = {"dx": ops.nodeDisp(self.tip, 1), "dz": ops.nodeDisp(self.tip, 2),
-                      "rotation": rot, "rotation_about_y": -rot}
+        out["tip"] = {
+            "dx": ops.nodeDisp(self.tip, 1),
+            "dz": ops.nodeDisp(self.tip, 2),
+            "rotation": rot,
+            "rotation_about_y": -rot,
+        }
         out["reactions"] = {}
         for name, nd in (("front", self.front[0]), ("back", self.back[0])):
             r = ops.nodeReaction(nd)
@@ -255,8 +264,10 @@ def solve_case(h, shear_k, case, nsteps, geom="Corotational"):
     for step in range(nsteps):
         ok = ops.analyze(1)
         if ok != 0:
-            raise RuntimeError(f"{case} h={h} k={shear_k}: no convergence at step {step + 1}"
-                               f" (load factor {ops.getTime():.6f})")
+            raise RuntimeError(
+                f"{case} h={h} k={shear_k}: no convergence at step {step + 1}"
+                f" (load factor {ops.getTime():.6f})"
+            )
     res = fg.results()
     res["load_factor"] = ops.getTime()
     return fg, res
@@ -270,7 +281,7 @@ def equilibrium_check(fg, case):
     m = 0.0
     for nd, f in loads.items():
         z = ops.nodeCoord(nd, 2) + ops.nodeDisp(nd, 2)
-        m += -z * f   # CCW moment of a +x force at height z
+        m += -z * f  # CCW moment of a +x force at height z
     rx = rz = rm = 0.0
     for nd in (fg.front[0], fg.back[0]):
         r = ops.nodeReaction(nd)
@@ -288,6 +299,7 @@ def trace_limit(h, shear_k, pattern, ctrl_s, du, u_max, refine=(5, 5, 5)):
     refined `refine` times until the step is < du / prod(refine) and fits a parabola
     through the three highest points.  Returns dict with the peak and the trace.
     """
+
     def run(segments, stop_after_peak):
         """segments: list of (n_steps, step) of the control displacement.  A step that
         fails is retried as 4 sub-steps (recursively, down to step / 64).  Returns the
@@ -309,7 +321,7 @@ def trace_limit(h, shear_k, pattern, ctrl_s, du, u_max, refine=(5, 5, 5)):
             for _ in range(4):
                 step_once(st / 4, depth + 1)
 
-        for (nst, st) in segments:
+        for nst, st in segments:
             for _ in range(nst):
                 step_once(st)
                 if stop_after_peak and len(lams) > 3 and lams[-1] < lams[-2]:
@@ -334,16 +346,21 @@ def trace_limit(h, shear_k, pattern, ctrl_s, du, u_max, refine=(5, 5, 5)):
         i = int(np.argmax(lams))
         # redo the first i - 1 steps (they reach us[i - 1]), then 2 r steps across the peak
         fine = (us[i + 1] - us[i - 1]) / (2 * r)
-        us, lams, taken = run(compress(taken[:i - 1]) + [(2 * r, fine)], False)
+        us, lams, taken = run(compress(taken[: i - 1]) + [(2 * r, fine)], False)
         step = fine
     i = int(np.argmax(lams))
-    u3, l3 = us[i - 1:i + 2], lams[i - 1:i + 2]
+    u3, l3 = us[i - 1 : i + 2], lams[i - 1 : i + 2]
     c = np.polyfit(u3, l3, 2)
     u_pk = -c[1] / (2 * c[0])
     lam_pk = float(np.polyval(c, u_pk))
-    return {"peak_load_factor": lam_pk, "u_ctrl_at_peak": float(u_pk),
-            "max_sampled_load_factor": float(lams[i]), "final_step_mm": step,
-            "coarse_trace_u": coarse[0].tolist(), "coarse_trace_load": coarse[1].tolist()}
+    return {
+        "peak_load_factor": lam_pk,
+        "u_ctrl_at_peak": float(u_pk),
+        "max_sampled_load_factor": float(lams[i]),
+        "final_step_mm": step,
+        "coarse_trace_u": coarse[0].tolist(),
+        "coarse_trace_load": coarse[1].tolist(),
+    }
 
 
 # ----------------------------------------------------------------------------- checks
@@ -380,26 +397,39 @@ def check_circle(n_el=50, nsteps=100, shear_k=5 / 6):
         if ops.analyze(1) != 0:
             failed_at = ops.getTime()
             break
-        last_ok = {"load_factor": ops.getTime(), "tip_x": L + ops.nodeDisp(tip, 1),
-                   "tip_y": ops.nodeDisp(tip, 2), "tip_rotation": ops.nodeDisp(tip, 3)}
-        if k + 1 == nsteps // 2:   # half the moment: half circle, tip at (0, 2 L / pi)
-            half = {"tip_x": L + ops.nodeDisp(tip, 1), "tip_y": ops.nodeDisp(tip, 2),
-                    "tip_rotation": ops.nodeDisp(tip, 3),
-                    "expected": {"tip_x": 0.0, "tip_y": 2 * L / math.pi,
-                                 "tip_rotation": math.pi}}
-    return {"n_elements": n_el, "load_steps": nsteps, "M_full_circle": M,
-            "half_circle_M_pi_EI_over_L": half,
-            "full_circle_reached": failed_at is None,
-            "newton_failed_at_load_factor": failed_at, "last_converged": last_ok}
+        last_ok = {
+            "load_factor": ops.getTime(),
+            "tip_x": L + ops.nodeDisp(tip, 1),
+            "tip_y": ops.nodeDisp(tip, 2),
+            "tip_rotation": ops.nodeDisp(tip, 3),
+        }
+        if k + 1 == nsteps // 2:  # half the moment: half circle, tip at (0, 2 L / pi)
+            half = {
+                "tip_x": L + ops.nodeDisp(tip, 1),
+                "tip_y": ops.nodeDisp(tip, 2),
+                "tip_rotation": ops.nodeDisp(tip, 3),
+                "expected": {"tip_x": 0.0, "tip_y": 2 * L / math.pi, "tip_rotation": math.pi},
+            }
+    return {
+        "n_elements": n_el,
+        "load_steps": nsteps,
+        "M_full_circle": M,
+        "half_circle_M_pi_EI_over_L": half,
+        "full_circle_reached": failed_at is None,
+        "newton_failed_at_load_factor": failed_at,
+        "last_converged": last_ok,
+    }
 
 
 def elastica_exact(alpha):
     """Inextensible, shear-rigid elastica: cantilever, dead tip force perpendicular to the
     undeformed axis, alpha = P L^2 / EI.  Returns (x_tip/L, deflection/L, tip angle)."""
+
     def fun(phi0):
-        m = (1 + math.sin(phi0)) / 2            # k^2
+        m = (1 + math.sin(phi0)) / 2  # k^2
         psi1 = math.asin(1 / math.sqrt(2 * m))
         return special.ellipk(m) - special.ellipkinc(psi1, m) - math.sqrt(alpha)
+
     phi0 = optimize.brentq(fun, 1e-9, math.pi / 2 - 1e-12, xtol=1e-15)
     m = (1 + math.sin(phi0)) / 2
     psi1 = math.asin(1 / math.sqrt(2 * m))
@@ -412,8 +442,8 @@ def elastica_reissner(alpha, shear_k, L=100.0, t=1.5):
     """Extensible, shear-deformable planar Reissner rod, same load, by 1-D shooting."""
     EI, EA = E_MOD * inertia(t), E_MOD * area(t)
     GA = (shear_k * G_MOD * area(t)) if shear_k is not None else math.inf
-    P = alpha * EI / L ** 2
-    nx, ny = 0.0, -P          # internal force (constant), acting on the part s+ from s-
+    P = alpha * EI / L**2
+    nx, ny = 0.0, -P  # internal force (constant), acting on the part s+ from s-
 
     def rhs(s, y):
         x, yy, th, m = y
@@ -426,9 +456,11 @@ def elastica_reissner(alpha, shear_k, L=100.0, t=1.5):
         return [dx, dy, m / EI, -(dx * ny - dy * nx)]
 
     def shoot(m0):
-        sol = integrate.solve_ivp(rhs, (0, L), [0, 0, 0, m0], rtol=1e-12, atol=1e-12,
-                                  method="DOP853")
+        sol = integrate.solve_ivp(
+            rhs, (0, L), [0, 0, 0, m0], rtol=1e-12, atol=1e-12, method="DOP853"
+        )
         return sol.y[:, -1]
+
     m0 = optimize.brentq(lambda m0: shoot(m0)[3], -P * L * 1.2, 0.0, xtol=1e-14)
     x, y, th, _ = shoot(m0)
     return x / L, -y / L, -th
@@ -436,17 +468,20 @@ def elastica_reissner(alpha, shear_k, L=100.0, t=1.5):
 
 def check_elastica(n_el, shear_k, alpha=2.0, nsteps=50, L=100.0, t=1.5):
     tip = cantilever(n_el, shear_k, L, t)
-    P = alpha * E_MOD * inertia(t) / L ** 2
+    P = alpha * E_MOD * inertia(t) / L**2
     ops.timeSeries("Linear", 1)
     ops.pattern("Plain", 1, 1)
-    ops.load(tip, 0.0, -P, 0.0)   # dead load, perpendicular to the undeformed axis
+    ops.load(tip, 0.0, -P, 0.0)  # dead load, perpendicular to the undeformed axis
     static_analysis(("LoadControl", 1.0 / nsteps))
     for k in range(nsteps):
         if ops.analyze(1) != 0:
             raise RuntimeError("elastica check failed")
-    return {"n_elements": n_el, "x_tip_over_L": (L + ops.nodeDisp(tip, 1)) / L,
-            "deflection_over_L": -ops.nodeDisp(tip, 2) / L,
-            "tip_angle": -ops.nodeDisp(tip, 3)}
+    return {
+        "n_elements": n_el,
+        "x_tip_over_L": (L + ops.nodeDisp(tip, 1)) / L,
+        "deflection_over_L": -ops.nodeDisp(tip, 2) / L,
+        "tip_angle": -ops.nodeDisp(tip, 3),
+    }
 
 
 def run_checks():
@@ -455,12 +490,17 @@ def run_checks():
     out["circle_tip_moment"] = [check_circle(n, nsteps=100) for n in (20, 50)]
     xe, ye, pe = elastica_exact(2.0)
     out["elastica_alpha_2"] = {
-        "exact_inextensible_elliptic": {"x_tip_over_L": xe, "deflection_over_L": ye,
-                                        "tip_angle": pe},
-        "reissner_shooting_k_5_6": dict(zip(("x_tip_over_L", "deflection_over_L", "tip_angle"),
-                                            elastica_reissner(2.0, 5 / 6))),
-        "reissner_shooting_EB_extensible": dict(zip(
-            ("x_tip_over_L", "deflection_over_L", "tip_angle"), elastica_reissner(2.0, None))),
+        "exact_inextensible_elliptic": {
+            "x_tip_over_L": xe,
+            "deflection_over_L": ye,
+            "tip_angle": pe,
+        },
+        "reissner_shooting_k_5_6": dict(
+            zip(("x_tip_over_L", "deflection_over_L", "tip_angle"), elastica_reissner(2.0, 5 / 6))
+        ),
+        "reissner_shooting_EB_extensible": dict(
+            zip(("x_tip_over_L", "deflection_over_L", "tip_angle"), elastica_reissner(2.0, None))
+        ),
         "opensees_k_5_6": [check_elastica(n, 5 / 6) for n in (20, 40, 80, 160)],
         "opensees_EB": [check_elastica(n, None) for n in (20, 40, 80, 160)],
     }
@@ -480,6 +520,7 @@ def cross_checks(h=1.25, case="L2"):
         ops.section("Elastic", tag, E_MOD, area(t), inertia(t), G_MOD, shear_k)
         ops.beamIntegration("Lobatto", tag, tag, 5)
         return tag
+
     define_section = alt
     try:
         out["section_Elastic_with_G_alphaY_lobatto5"] = solve_case(h, 5 / 6, case, 100)[1]["tip"]
@@ -502,27 +543,37 @@ def main(argv=None):
 
     data = {
         "description": "ref-A fin-ray finger, OpenSees 2-D corotational forceBeamColumn "
-                       "(elastic + shear aggregated section); see script docstring",
+        "(elastic + shear aggregated section); see script docstring",
         "generator": "tests/reference/opensees_ref_a.py",
         "date": datetime.date.today().isoformat(),
-        "versions": {"openseespy": metadata.version("openseespy"),
-                     "opensees": ops.version() if hasattr(ops, "version") else None,
-                     "numpy": np.__version__, "python": platform.python_version()},
+        "versions": {
+            "openseespy": metadata.version("openseespy"),
+            "opensees": ops.version() if hasattr(ops, "version") else None,
+            "numpy": np.__version__,
+            "python": platform.python_version(),
+        },
         "units": "mm, N, MPa",
         "conventions": {
             "plane": "OpenSees X = spec x, OpenSees Y = spec z",
             "rotation": "CCW positive in the (x, z) plane viewed with x right, z up",
             "rotation_about_y": "= -rotation (right-handed x-y-z; CCW in that view is about -y)",
             "reactions": "force/moment the support applies to the beam at the base node; "
-                         "My_ccw CCW positive about the base point, My_about_y = -My_ccw",
+            "My_ccw CCW positive about the base point, My_about_y = -My_ccw",
             "loads": "dead nodal loads in world coordinates",
             "L3_nodal_loads": "q h on interior nodes, q h / 2 on the end nodes of [75, 105]",
         },
-        "model": {"E": E_MOD, "nu": NU, "G": G_MOD, "depth": DEPTH,
-                  "t_front": T_FRONT, "t_back": T_BACK, "t_cross": T_CROSS,
-                  "element": "forceBeamColumn, Lobatto 3 points, geomTransf Corotational",
-                  "section": "Elastic(E,A,I) + Aggregator Vy: uniaxial Elastic k*G*A",
-                  "solver": "Newton, NormDispIncr 1e-11, UmfPack, load control"},
+        "model": {
+            "E": E_MOD,
+            "nu": NU,
+            "G": G_MOD,
+            "depth": DEPTH,
+            "t_front": T_FRONT,
+            "t_back": T_BACK,
+            "t_cross": T_CROSS,
+            "element": "forceBeamColumn, Lobatto 3 points, geomTransf Corotational",
+            "section": "Elastic(E,A,I) + Aggregator Vy: uniaxial Elastic k*G*A",
+            "solver": "Newton, NormDispIncr 1e-11, UmfPack, load control",
+        },
         "load_steps": args.steps,
         "element_size": h_fine,
         "mesh_sizes": sizes,
@@ -539,14 +590,24 @@ def main(argv=None):
             for h in sorted(sizes_here, reverse=True):
                 t0 = time.time()
                 fg, res = solve_case(h, kk, case, args.steps)
-                conv.append({"h": h, "n_elements": fg.n_elements, "tip_dx": res["tip"]["dx"],
-                             "tip_dz": res["tip"]["dz"], "tip_rotation": res["tip"]["rotation"],
-                             "seconds": time.time() - t0})
+                conv.append(
+                    {
+                        "h": h,
+                        "n_elements": fg.n_elements,
+                        "tip_dx": res["tip"]["dx"],
+                        "tip_dz": res["tip"]["dz"],
+                        "tip_rotation": res["tip"]["rotation"],
+                        "seconds": time.time() - t0,
+                    }
+                )
                 if h == h_fine:
                     best = res
                     best["equilibrium_residual"] = equilibrium_check(fg, case)
-                print(f"{key} {case} h={h}: dx={res['tip']['dx']:.6f} dz={res['tip']['dz']:.6f}"
-                      f" rot={res['tip']['rotation']:.6f} ({time.time() - t0:.1f}s)", flush=True)
+                print(
+                    f"{key} {case} h={h}: dx={res['tip']['dx']:.6f} dz={res['tip']['dz']:.6f}"
+                    f" rot={res['tip']['rotation']:.6f} ({time.time() - t0:.1f}s)",
+                    flush=True,
+                )
             best["element_size"] = h_fine
             best["load_steps"] = args.steps
             best["convergence"] = conv
@@ -555,15 +616,21 @@ def main(argv=None):
                 best["tip_dx_rel_change_last_refinement"] = abs(d1 - d2) / abs(d1)
                 best["tip_richardson_h2_extrapolated"] = {
                     q: conv[-1][f"tip_{q}"] + (conv[-1][f"tip_{q}"] - conv[-2][f"tip_{q}"]) / 3.0
-                    for q in ("dx", "dz", "rotation")}
+                    for q in ("dx", "dz", "rotation")
+                }
             block[case] = best
         if not args.no_limit and kk is not None:
             lim = {}
             info = {}
             for name, pat, ctrl, du in (
-                    ("point_s60", {"kind": "point", "s": 60.0, "F": 1.0}, 60.0, 1.0),
-                    ("distributed_75_105", {"kind": "dist", "s0": 75.0, "s1": 105.0, "F": 1.0},
-                     90.0, 1.0)):
+                ("point_s60", {"kind": "point", "s": 60.0, "F": 1.0}, 60.0, 1.0),
+                (
+                    "distributed_75_105",
+                    {"kind": "dist", "s0": 75.0, "s1": 105.0, "F": 1.0},
+                    90.0,
+                    1.0,
+                ),
+            ):
                 per_h = []
                 for h in sorted(sizes, reverse=True):
                     t0 = time.time()
@@ -571,18 +638,25 @@ def main(argv=None):
                     r["h"] = h
                     r["seconds"] = time.time() - t0
                     per_h.append(r)
-                    print(f"{key} limit {name} h={h}: {r['peak_load_factor']:.6f} N at u="
-                          f"{r['u_ctrl_at_peak']:.4f} ({r['seconds']:.1f}s)", flush=True)
+                    print(
+                        f"{key} limit {name} h={h}: {r['peak_load_factor']:.6f} N at u="
+                        f"{r['u_ctrl_at_peak']:.4f} ({r['seconds']:.1f}s)",
+                        flush=True,
+                    )
                 lim[name] = per_h[-1]["peak_load_factor"]
                 p1, p2 = per_h[-1]["peak_load_factor"], per_h[-2]["peak_load_factor"]
                 lim[name + "_richardson_h2"] = p1 + (p1 - p2) / 3.0
-                info[name] = {"control_dof": f"x of front-beam node s={ctrl}",
-                              "total_load_N_per_load_factor": 1.0,
-                              "mesh_convergence": [{k: v for k, v in r.items()
-                                                    if not k.startswith("coarse")}
-                                                   for r in per_h],
-                              "coarse_trace_finest_mesh": {"u": per_h[-1]["coarse_trace_u"],
-                                                           "load": per_h[-1]["coarse_trace_load"]}}
+                info[name] = {
+                    "control_dof": f"x of front-beam node s={ctrl}",
+                    "total_load_N_per_load_factor": 1.0,
+                    "mesh_convergence": [
+                        {k: v for k, v in r.items() if not k.startswith("coarse")} for r in per_h
+                    ],
+                    "coarse_trace_finest_mesh": {
+                        "u": per_h[-1]["coarse_trace_u"],
+                        "load": per_h[-1]["coarse_trace_load"],
+                    },
+                }
             block["limit_loads"] = lim
             block["limit_load_details"] = info
         data[key] = block
