@@ -227,13 +227,19 @@ def _unit(direction, name):
     return w / np.linalg.norm(w)
 
 
+def _shape_key(topo):
+    """What two segment tables must share to describe the same finger (the cuts may
+    differ: they follow the design values)."""
+    return (topo.mode, topo.base_kinds, topo.n_crossbeams, topo.tapered, topo.contact)
+
+
 class _Stepper:
     """Warm-started equilibria along a path of object displacements, with step halving.
 
     validate: check the finger (False for a finger whose objects were moved into contact
     by a previous grasp: its start no longer has the objects clear of the beams)."""
 
-    def __init__(self, finger, mode, integrator, options, validate=True):
+    def __init__(self, finger, mode, integrator, options, validate=True, topology=None):
         from ._assembly import build_topology
         from ._types import check_x64
 
@@ -243,6 +249,13 @@ class _Stepper:
         else:
             check_x64("finray_jax")
             self.topo = build_topology(finger, mode)
+        if topology is not None:
+            if _shape_key(topology) != _shape_key(self.topo):
+                raise FingerError(
+                    "topology= is the segment table of a different finger (other beams, "
+                    "crossbeams, objects or mode): pass the .topology of a grasp of this finger"
+                )
+            self.topo = topology
         self.integrator = integrator
         self.options = options
         self.calls = 0
@@ -321,6 +334,7 @@ def grasp(
     integrator: Integrator = Integrator(steps=GRASP_STEPS),
     options: SolverOptions = SolverOptions(),
     stiffen: bool = True,
+    topology=None,
 ) -> GraspSolution:
     """Close the finger on its objects and solve the contact equilibrium.
 
@@ -329,6 +343,9 @@ def grasp(
         closing displacement is then found by a safeguarded secant iteration).
     stiffen: when the largest penetration exceeds `Contact.max_penetration` of the front
         beam's thickness, raise the penalty stiffness and solve again (warm started).
+    topology: the segment table of an earlier grasp of the same finger (its `.topology`):
+        the beams are cut at the same points whatever the design values, so the answer is
+        on that grasp's discretisation and nothing recompiles. None: cut for this finger.
     """
     if (closing is None) == (actuator_force is None):
         raise FingerError("grasp needs exactly one of closing= and actuator_force=")
@@ -342,7 +359,7 @@ def grasp(
         fa = float(np.asarray(actuator_force))
         if not np.isfinite(fa) or fa < 0:
             raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
-    stepper = _Stepper(finger, mode, integrator, options)
+    stepper = _Stepper(finger, mode, integrator, options, topology=topology)
     k = float(
         default_stiffness(finger) if finger.contact.stiffness is None else finger.contact.stiffness
     )
@@ -516,12 +533,17 @@ def release_force(
             break
     f = np.asarray(forces)
     i = int(np.argmax(f)) if len(f) else 0
+    peak, peak_pull = (float(f[i]), float(pulls[i])) if len(f) else (0.0, 0.0)
+    if peak <= 1e-9 * float(np.max(np.abs(f), initial=0.0)):
+        # round-off where the contact fades out is not a holding force
+        peak, peak_pull = 0.0, 0.0
+        message += "; not held: at every step the fingers push the object along the pull"
     return ReleaseTrace(
         pull=np.asarray(pulls),
         force=f,
         normal_force=np.asarray(normals),
-        peak=float(f[i]) if len(f) else 0.0,
-        peak_pull=float(pulls[i]) if len(f) else 0.0,
+        peak=peak,
+        peak_pull=peak_pull,
         complete=complete,
         message=message,
     )

@@ -327,3 +327,33 @@ def test_regrasp_derivative_matches_finite_differences(finger1):
     fd = (float(force(6.0 + h)) - float(force(6.0 - h))) / (2 * h)
     assert float(value) == pytest.approx(float(g.contact.normal_force), rel=1e-8)
     assert float(slope) == pytest.approx(fd, rel=1e-5)
+
+
+def test_grasp_on_a_given_topology(finger1, grasps):
+    """`grasp(..., topology=g.topology)` cuts the beams where g's grasp did: a changed
+    design grasped from scratch on those cuts is the equilibrium `regrasp` reaches from g
+    (same discrete model, so they agree to the Newton tolerance); a table of another
+    finger is refused."""
+    original, modified = grasps
+    moved = fr.set_design(finger1, {"crossbeams.front_s[1]": 31.0})
+    g = fr.grasp(moved, 5.0, stiffen=False, topology=original.topology)
+    assert g.converged and g.topology == original.topology
+    ref = eqx.tree_at(lambda r: r.stiffness, original, g.stiffness)
+    _, contact = fr.regrasp(ref, moved, 5.0)
+    assert float(g.contact.normal_force) == pytest.approx(float(contact.normal_force), rel=1e-7)
+    with pytest.raises(fr.FingerError, match="segment table of a different finger"):
+        fr.grasp(finger1, 5.0, topology=modified.topology)
+
+
+def test_modified_adaptor_without_friction_pushes_the_object_out(grasps):
+    """With the front base pinned and the back beam supported, the front beam leans so
+    that its pressure on the 18 mm cylinder has a component toward the tips: without
+    friction nothing resists the pull (holding force 0, reported as such, not as the
+    round-off left where the contact fades); friction holds it."""
+    _, modified = grasps
+    tr = fr.release_force(modified, step=4.0)
+    assert tr.force[0] < -0.05 * float(modified.contact.normal_force)
+    assert np.all(tr.force <= 1e-9 * np.max(np.abs(tr.force)))
+    assert tr.peak == 0.0 and "not held" in tr.message
+    rough = fr.release_force(modified, step=4.0, friction=0.5)
+    assert rough.peak > 0.1 * float(modified.contact.normal_force)

@@ -418,8 +418,9 @@ def test_spacing_limit_is_respected_where_the_unconstrained_optimum_violates_it(
 def test_holding_force_gradient_is_the_envelope_gradient(tmp_path):
     """d(peak of the release trace)/d(design) by the envelope theorem (dF/dx at the peak
     pull t*) against central differences of the re-maximised peak max_t F(t, x +- h)."""
+    # (with friction: without it this finger pushes the object out, see test_contact)
     text = CLAMP.format(finger=FINGER, strain=10.0, pressure=100.0, iterations=2)
-    p = _load('objective = "holding_force"\n' + text, tmp_path)
+    p = _load('objective = "holding_force"\nfriction = 0.5\n' + text, tmp_path)
     setup = O._setup(p)
     z0 = jnp.asarray(O._z_of(p.lo, p.hi, p.x0), jnp.float64)
     anchors = O._refine_pull(setup, z0, setup.anchors, p.pull_step)
