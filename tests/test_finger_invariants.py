@@ -299,15 +299,20 @@ def test_design_values_do_not_recompile(sol_l1, monkeypatch):
     # Two independent counts, each on an internal of finray_jax/_solve.py:
     # 1. _make_problem runs once per trace of the jitted core _solve_core: wrap it with
     #    eqx.debug.assert_max_traces and count (the jit cache ignores the wrapper);
-    # 2. the size of the jax.jit cache behind the eqx.filter_jit of _solve_core.
+    # 2. the size of the jax.jit caches behind the eqx.filter_jit of _direct_core (the
+    #    plain Newton solve) and _solve_core (with load continuation).
     checks = 0
     if hasattr(_solve, "_make_problem"):
         counted = eqx.debug.assert_max_traces(_solve._make_problem, max_traces=None)
         monkeypatch.setattr(_solve, "_make_problem", counted)
         checks += 1
-    cache = getattr(getattr(_solve._solve_core, "_cached", None), "_cache_size", None)
-    size0 = cache() if cache else None
-    checks += cache is not None
+    caches = [
+        getattr(getattr(core, "_cached", None), "_cache_size", None)
+        for core in (_solve._direct_core, _solve._solve_core)
+    ]
+    caches = [c for c in caches if c is not None]
+    size0 = [c() for c in caches]
+    checks += len(caches)
     assert checks, "found no way to count compilations of finray_jax._solve._solve_core"
     for name, finger in variants.items():
         assert fr.topology_of(finger, "planar") == fr.topology_of(base, "planar"), name
@@ -316,8 +321,7 @@ def test_design_values_do_not_recompile(sol_l1, monkeypatch):
         assert moved > 1e-6, f"{name} did not change the answer"
         if hasattr(_solve, "_make_problem"):
             assert eqx.debug.get_num_traces(counted) == 0, f"{name} retraced the solve"
-        if cache:
-            assert cache() == size0, f"{name} recompiled the solve"
+        assert [c() for c in caches] == size0, f"{name} recompiled the solve"
 
 
 # --------------------------------------------------------------------------------------
