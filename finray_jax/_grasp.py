@@ -489,8 +489,8 @@ def release_force(
     The holding force at a step is the force the fingers exert on the object against the
     pull: holding_factor x (contact force on this finger) . pull_direction. With friction
     the object slides along the pull direction (the slip direction of the friction law).
-    The trace stops when the contact is lost, or at max_pull (default: the finger's
-    height).
+    The trace starts at pull 0 (the grasp re-solved with the pull's friction law) and
+    stops when the contact is lost, or at max_pull (default: the finger's height).
     """
     w = _unit(pull_direction, "pull_direction")
     if not (np.isfinite(step) and step > 0):
@@ -512,10 +512,18 @@ def release_force(
         return _moved(finger, t * w)
 
     pulls, forces, normals = [], [], []
-    sol = g.solution
     t = 0.0
     complete, message = False, "reached max_pull"
-    peak_normal = 0.0
+    # the grasp itself, re-solved with the pull's friction: the onset of the pull
+    sol, ok = stepper.solve(at(0.0), g.solution.unknowns)
+    if ok:
+        res = contact_result(at(0.0), sol, w)
+        pulls.append(0.0)
+        forces.append(g.holding_factor * float(jnp.dot(res.force[::2], w)))
+        normals.append(float(res.normal_force))
+    else:
+        sol = g.solution
+    peak_normal = max(normals, default=0.0)
     while t < max_pull:
         t_new, sol_new, ok = stepper.follow(at, t, t + step, sol, step, 1e-3 * step)
         if t_new > t:

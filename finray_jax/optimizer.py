@@ -227,8 +227,9 @@ def _setup(problem: OptimizeProblem, say=lambda m: None) -> _Setup:
 
 def _refine_pull(setup: _Setup, z, anchors: _Anchors, step: float, max_iter: int = 6):
     """Move every object's pull t to the peak of F(t) at design z (Newton on dF/dt = 0,
-    d2F/dt2 by a difference of dF/dt); returns the new anchors, or None if a solve
-    fails."""
+    or t = 0 where F falls from the onset of the pull: there friction holds hardest;
+    d2F/dt2 by a difference of dF/dt; a move whose solve fails is halved); returns the
+    new anchors, or None if the solves keep failing."""
     st, data = setup.static, setup.data
     v, s, u, ok = _pull_slope(z, st, data, anchors)
     if not bool(jnp.all(ok)):
@@ -236,7 +237,9 @@ def _refine_pull(setup: _Setup, z, anchors: _Anchors, step: float, max_iter: int
     anchors = eqx.tree_at(lambda a: a.unknowns, anchors, u)
     dt = 1e-3 * step
     for _ in range(max_iter):
-        if float(jnp.max(jnp.abs(s) * step - 1e-10 * jnp.abs(v))) <= 0:
+        interior = jnp.abs(s) * step <= 1e-10 * jnp.abs(v)
+        at_start = (anchors.pull <= 0.0) & (s < 0)  # F falls from the pull's onset
+        if bool(jnp.all(interior | at_start)):
             break
         probe = eqx.tree_at(lambda a: a.pull, anchors, anchors.pull + dt)
         _, s2, _, ok2 = _pull_slope(z, st, data, probe)
@@ -246,10 +249,15 @@ def _refine_pull(setup: _Setup, z, anchors: _Anchors, step: float, max_iter: int
         # Newton toward the maximum; uphill by at most one pull step where F is not concave
         move = jnp.where(curv < 0, -s / jnp.where(curv < 0, curv, -1.0), jnp.sign(s) * step)
         move = jnp.clip(move, -step, step)
-        trial = eqx.tree_at(lambda a: a.pull, anchors, jnp.maximum(anchors.pull + move, 0.0))
-        v, s, u, ok = _pull_slope(z, st, data, trial)
-        if not bool(jnp.all(ok)):
+        for _halving in range(MAX_HALVINGS):  # a sharp peak (friction): shorter moves
+            trial = eqx.tree_at(lambda a: a.pull, anchors, jnp.maximum(anchors.pull + move, 0.0))
+            v2, s2, u, ok = _pull_slope(z, st, data, trial)
+            if bool(jnp.all(ok)):
+                break
+            move = 0.5 * move
+        else:
             return None
+        v, s = v2, s2
         anchors = eqx.tree_at(lambda a: a.unknowns, trial, u)
     return anchors
 
@@ -394,6 +402,16 @@ def _load_checkpoint(problem: OptimizeProblem, out_dir: str):
             "--out directory, or delete that one to start again"
         )
     return ck
+
+
+def _save_checkpoint(problem: OptimizeProblem, out_dir: str, state: dict) -> None:
+    record = {
+        "format": _FORMAT,
+        "hash": problem.digest,
+        "source": os.path.abspath(problem.source),
+        "state": state,
+    }
+    _fsync_write(os.path.join(out_dir, CHECKPOINT), json.dumps(record) + "\n")
 
 
 def _truncate_rows(csv_path: str, header: str, rows: int) -> None:
@@ -584,18 +602,7 @@ def run_optimize(
                 f"converged: objective changed by <= tolerance = "
                 f"{problem.tolerance} (relative) for {problem.patience} iterations"
             )
-        _fsync_write(
-            os.path.join(out_dir, CHECKPOINT),
-            json.dumps(
-                {
-                    "format": _FORMAT,
-                    "hash": problem.digest,
-                    "source": os.path.abspath(problem.source),
-                    "state": state,
-                }
-            )
-            + "\n",
-        )
+        _save_checkpoint(problem, out_dir, state)
         new_rows += 1
         if progress is not None:
             m = ", ".join(f"{c} {margins[c]:.3g}" for c in cons)
@@ -610,18 +617,7 @@ def run_optimize(
             )
         if after_iteration is not None:
             after_iteration(k + 1)
-    _fsync_write(
-        os.path.join(out_dir, CHECKPOINT),
-        json.dumps(
-            {
-                "format": _FORMAT,
-                "hash": problem.digest,
-                "source": os.path.abspath(problem.source),
-                "state": state,
-            }
-        )
-        + "\n",
-    )
+    _save_checkpoint(problem, out_dir, state)
     figures = ()
     run = OptimizeRun(
         rows=state["rows"],
