@@ -21,7 +21,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow and not opensees"
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --runslow
 
 bench: $(STAMP)
 	taskset -c 0 $(BIN)/python benchmarks/solve.py
