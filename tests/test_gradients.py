@@ -9,7 +9,8 @@ under L1 for 13 design values (one index of each crossbeam array). Here:
 * Finger-1 (examples/finger1.toml, 4 N over l5..l7) with its back beam clamped over
   l_c = 10 mm: tip.dx, tip.dz, both base reactions and max_strain with respect to l_c,
   front_s, back_s, angle and thickness of EVERY crossbeam, both main-beam thicknesses,
-  depth, E and tip.x (default suite).
+  depth, E and tip.x (slow: ~3 min of compilation; the default suite's
+  tests/test_design.py covers every kind of design value on ref-A).
 * ref-A under L2 (1.5 N, strongly nonlinear: reached by load continuation) with l_c = 8
   mm, the same list (slow).
 * The limit load factor of ref-A under L2 and L3 (slow: the continuation compiles).
@@ -174,6 +175,7 @@ def finger1_derivs():
     return derivatives(Case(base))
 
 
+@pytest.mark.slow
 def test_finger1_max_strain_is_at_a_unique_point(finger1_derivs):
     """max_strain is a max over solution points: its derivative is that of the strain at
     the maximising point, valid while that point does not change. None of the +-h solves
@@ -181,6 +183,7 @@ def test_finger1_max_strain_is_at_a_unique_point(finger1_derivs):
     assert finger1_derivs["moved"] == []
 
 
+@pytest.mark.slow
 def test_finger1_ties_are_one_sided(finger1_derivs):
     """Crossbeam 4 ends where the load starts (s = 75; the topology puts the crossbeam
     first) and crossbeam 6 where it ends (s = 105; the load's end first): only moving
@@ -191,6 +194,7 @@ def test_finger1_ties_are_one_sided(finger1_derivs):
     }
 
 
+@pytest.mark.slow
 @pytest.mark.xfail(
     reason="open: at a tie of a crossbeam end with a distributed-load end the jacfwd "
     "derivative differs from the one-sided difference on the topology-keeping side "
@@ -205,16 +209,19 @@ def test_finger1_ties_match_one_sided_fd(finger1_derivs):
     assert np.all(err < 1e-5), err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k", range(len(OUTS)), ids=OUTS)
 def test_finger1_jacfwd_matches_finite_differences(finger1_derivs, k):
     _check_against_fd(finger1_derivs, "jac", k)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k", range(len(OUTS)), ids=OUTS)
 def test_finger1_grad_matches_finite_differences(finger1_derivs, k):
     _check_against_fd(finger1_derivs, "rows", k)
 
 
+@pytest.mark.slow
 def test_finger1_grad_equals_jacfwd(finger1_derivs):
     """Forward and reverse mode solve the same linear system (J and its transpose): they
     agree to rounding, far tighter than the finite differences."""
