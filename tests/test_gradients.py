@@ -96,12 +96,18 @@ def _argmax_strain(sol, finger):
     return best[1:]
 
 
-def _steps(x0):
-    """Central-difference steps: 1e-4 relative for lengths, thicknesses and E, 1e-4 rad
-    for angles and 1e-4 mm for back_s increments (which start at 0). Truncation error
-    h^2 f''' / (6 f') is ~1e-8 relative for values varying on mm / 0.1 rad scales; the
-    solves converge to a scaled residual ~1e-13, whose noise over 2h is ~1e-9 relative."""
-    return 1e-4 * np.maximum(np.abs(x0), 1.0)
+def _steps(case: Case):
+    """Finite-difference steps: 1e-3 relative for lengths (back_s increments relative to
+    the back_s they move), thicknesses and E, and 1e-3 rad for angles. The central
+    differences at h and h/2 are combined by Richardson extrapolation,
+    (4 D(h/2) - D(h)) / 3, whose truncation error is O(h^4). Measured on ref-A L2: plain
+    central differences at h = 1e-4 are off by 1.1e-5 (angle[0], falling as h^2:
+    truncation), and tip.dx / back_s[6], whose derivative is ~1e-7 of the largest in its
+    row, cannot get below ~2e-5 with steps of 1e-3 mm or less (solve noise ~1e-13 over 2h
+    grows as h shrinks); relative steps with extrapolation avoid both."""
+    scale = np.maximum(np.abs(case.x0), 1.0)
+    scale[len(COMMON) :] = np.asarray(case.base.crossbeams.back_s)
+    return 1e-3 * scale
 
 
 def derivatives(case: Case):
@@ -118,29 +124,33 @@ def derivatives(case: Case):
     fd = np.zeros_like(jac)
     moved = []  # design values whose FD solves moved the location of max_strain
     one_sided = {}  # design values at a tie of events (see below): the side used
-    for i, h in enumerate(_steps(case.x0)):
+    for i, h in enumerate(_steps(case)):
         e = np.zeros_like(case.x0)
         e[i] = h
         valid = [
             bool(design.design_valid(case.finger(case.x0 + s * e), case.topo)) for s in (1, -1)
         ]
         if all(valid):
-            (up, w_up), (down, w_down) = case.eager(case.x0 + e), case.eager(case.x0 - e)
-            fd[:, i] = (up - down) / (2 * h)
-            where = (w_up, w_down)
+            pts = {s: case.eager(case.x0 + s * e) for s in (1.0, -1.0, 0.5, -0.5)}
+            d_h = (pts[1.0][0] - pts[-1.0][0]) / (2 * h)
+            d_half = (pts[0.5][0] - pts[-0.5][0]) / h
+            fd[:, i] = (4.0 * d_half - d_h) / 3.0
+            where = tuple(w for _, w in pts.values())
         else:
             # An attachment that ties with another event (Finger-1's crossbeams 4 and 6
             # sit at the ends of the distributed load, s = 75 and 105) is a switch of the
             # topology: moving it one way reorders the events. The derivative there is
             # the one-sided derivative on the side that keeps the topology; compare with
-            # the second-order one-sided difference (-3 f0 + 4 f(h) - f(2h)) / (2h).
+            # the second-order one-sided difference (-3 f0 + 4 f(h) - f(2h)) / (2h), with
+            # h a tenth of the central step (its truncation is O(h^2)).
             assert any(valid), LABELS[i]
             sign = 1.0 if valid[0] else -1.0
+            h, e = 0.1 * h, 0.1 * e
             (f1, w1), (f2, w2) = case.eager(case.x0 + sign * e), case.eager(case.x0 + 2 * sign * e)
             fd[:, i] = (-3.0 * out0 + 4.0 * f1 - f2) / (2 * sign * h)
             where = (w1, w2)
             one_sided[LABELS[i]] = sign
-        if not where[0] == where[1] == where0:
+        if any(w != where0 for w in where):
             moved.append(LABELS[i])
     return dict(
         jac=jac, rows=rows, fd=fd, out0=out0, where=where0, moved=moved, one_sided=one_sided
