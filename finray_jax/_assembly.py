@@ -152,7 +152,8 @@ def _event_s(finger: Finger, beam: int, kind: str, index: int):
         return finger.adaptor.support_length
     if kind == "cb":
         cb = finger.crossbeams
-        return cb.front_s[index] if beam == FRONT else cb.back_s[index]
+        # (indexing a host copy: indexing the jax array is one dispatch per event)
+        return np.asarray(cb.front_s if beam == FRONT else cb.back_s)[index]
     load = finger.loads[index]
     if kind == "point":
         return load.s

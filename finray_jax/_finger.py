@@ -200,20 +200,31 @@ def _positive(name, value):
     return v
 
 
+# The eager checks evaluate the geometry as one compiled call each: op by op it took
+# ~150 dispatches and ~20 ms per solve_finger call.
+_geometry = eqx.filter_jit(geometry)
+
+
+@eqx.filter_jit
+def _main_lengths(tip, bases_and_curvatures):
+    tip = xz(as_float(tip))
+    return [
+        main_beam_arc(xz(as_float(base)), tip, as_float(kappa))[0]
+        for base, kappa in bases_and_curvatures
+    ]
+
+
 def beam_lengths(finger: Finger) -> tuple[float, float]:
     """Arc lengths of the front and back beams (needs only the main beams' fields)."""
-    tip = xz(as_float(finger.tip))
-    return tuple(
-        float(main_beam_arc(xz(as_float(base)), tip, as_float(kappa))[0])
-        for base, kappa in (
-            (finger.front_base, finger.front_curvature),
-            (finger.back_base, finger.back_curvature),
-        )
+    pairs = (
+        (finger.front_base, finger.front_curvature),
+        (finger.back_base, finger.back_curvature),
     )
+    return tuple(float(x) for x in _main_lengths(finger.tip, pairs))
 
 
 def crossbeam_lengths(finger: Finger) -> np.ndarray:
-    return np.asarray(geometry(finger).length[2:])
+    return np.asarray(_geometry(finger).length[2:])
 
 
 def validate_finger(finger: Finger) -> None:
@@ -447,7 +458,7 @@ def _validate_object(where: str, obj) -> None:
 def _overlap(finger: Finger, obj, samples: int = 401):
     """(beam, s, depth) of the deepest overlap of an object with a main beam's band at the
     start, or None."""
-    geo = geometry(finger)
+    geo = _geometry(finger)
     worst = None
     for b, name, sec in ((FRONT, "front", finger.front), (BACK, "back", finger.back)):
         length = float(geo.length[b])
