@@ -215,9 +215,18 @@ def _moved(finger: Finger, displacement) -> Finger:
     return eqx.tree_at(lambda f: f.objects, finger, objs)
 
 
-def _with_stiffness(finger: Finger, k) -> Finger:
-    c = eqx.tree_at(lambda c: c.stiffness, finger.contact, as_float(k), is_leaf=lambda x: x is None)
+def _with_contact(finger: Finger, **values) -> Finger:
+    """The finger with the given fields of its Contact replaced (as float arrays)."""
+    c = finger.contact
+    for key, v in values.items():
+        c = eqx.tree_at(
+            lambda c, key=key: getattr(c, key), c, as_float(v), is_leaf=lambda x: x is None
+        )
     return eqx.tree_at(lambda f: f.contact, finger, c)
+
+
+def _with_stiffness(finger: Finger, k) -> Finger:
+    return _with_contact(finger, stiffness=k)
 
 
 def _unit(direction, name):
@@ -495,15 +504,12 @@ def release_force(
     w = _unit(pull_direction, "pull_direction")
     if not (np.isfinite(step) and step > 0):
         raise FingerError(f"step must be a positive distance (mm), got {step}")
-    finger = g.finger
-    c = finger.contact
-    c = eqx.tree_at(lambda c: c.slip_direction, c, as_float(w))
+    finger = _with_contact(g.finger, slip_direction=w)
     if friction is not None:
         mu = float(friction)
         if not np.isfinite(mu) or mu < 0:
             raise FingerError(f"friction must be a non-negative coefficient, got {mu}")
-        c = eqx.tree_at(lambda c: c.friction, c, as_float(mu))
-    finger = eqx.tree_at(lambda f: f.contact, finger, c)
+        finger = _with_contact(finger, friction=mu)
     if max_pull is None:
         max_pull = float(np.ptp(np.asarray(g.solution.front.position[:, 2]))) + 2 * step
     stepper = _Stepper(finger, mode, integrator, options, validate=False)

@@ -211,10 +211,3 @@ def _pull_slope(z, static: _Static, data: _Data, anchors: _Anchors):
 
 def _stack(trees):
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
-
-
-def _with_contact(finger: Finger, **values) -> Finger:
-    c = finger.contact
-    for key, v in values.items():
-        c = eqx.tree_at(lambda c, key=key: getattr(c, key), c, jnp.asarray(v, jnp.float64))
-    return eqx.tree_at(lambda f: f.contact, finger, c)

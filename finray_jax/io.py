@@ -754,6 +754,25 @@ def _require(r: _Reader, table: dict, path: str, keys, hints: dict) -> None:
             raise r.error(full, "missing required key" + hints.get(key, ""))
 
 
+def _read_run_record(path, out_dir, error, *, what, run, digest, hash_key, source_key) -> dict:
+    """The JSON record a resumable run keeps in its output directory (a sweep's manifest,
+    an optimisation's checkpoint), checked to belong to this `run` (same hash)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            record = json.load(fh)
+    except (OSError, ValueError) as e:
+        raise error(
+            f"{path}: unreadable {what} ({e}); remove {out_dir} or use another --out"
+        ) from None
+    if record.get(hash_key) != digest:
+        raise error(
+            f"{out_dir} holds another {run} (from {record.get(source_key, '?')}, hash "
+            f"{str(record.get(hash_key))[:12]}; this one's hash is {digest[:12]}): use another "
+            "--out directory, or delete that one to start again"
+        )
+    return record
+
+
 def _base_finger(doc: dict, r: _Reader, base_dir: str):
     """The finger file a study names (key `finger`, relative to the study file):
     (finger, settings, normalised path, sha256 of its bytes)."""

@@ -298,7 +298,6 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
         **{k: (list(v) if isinstance(v, tuple) else v) for k, v in kw.items() if k != "design"},
         "design": [[d.name, d.lo, d.hi, d.initial] for d in design],
     }
-    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
     # iterations and tolerance may change between runs: a longer run continues the same one
     for k in ("iterations", "tolerance", "patience"):
         key.pop(k)

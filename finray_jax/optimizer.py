@@ -52,6 +52,7 @@ from ._grasp import (
     GraspSolution,
     _moved,
     _Stepper,
+    _with_contact,
     grasp,
     release_force,
 )
@@ -80,7 +81,6 @@ from ._objective import (
     _pull_slope,
     _stack,
     _Static,
-    _with_contact,
     _z_of,
 )
 from .optimize_file import (
@@ -388,20 +388,16 @@ def _load_checkpoint(problem: OptimizeProblem, out_dir: str):
                 "use another --out"
             )
         return None
-    try:
-        with open(path, encoding="utf-8") as fh:
-            ck = json.load(fh)
-    except (OSError, ValueError) as e:
-        raise OptimizeError(
-            f"{path}: unreadable checkpoint ({e}); remove {out_dir} or use another --out"
-        ) from None
-    if ck.get("hash") != problem.digest:
-        raise OptimizeError(
-            f"{out_dir} holds another optimisation (from {ck.get('source', '?')}, hash "
-            f"{str(ck.get('hash'))[:12]}; this one's hash is {problem.digest[:12]}): use another "
-            "--out directory, or delete that one to start again"
-        )
-    return ck
+    return fio._read_run_record(
+        path,
+        out_dir,
+        OptimizeError,
+        what="checkpoint",
+        run="optimisation",
+        digest=problem.digest,
+        hash_key="hash",
+        source_key="source",
+    )
 
 
 def _save_checkpoint(problem: OptimizeProblem, out_dir: str, state: dict) -> None:

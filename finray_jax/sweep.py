@@ -244,19 +244,16 @@ def _manifest(sweep: Sweep, finished: bool) -> dict:
 def _check_manifest(sweep: Sweep, out_dir: str) -> None:
     path = os.path.join(out_dir, MANIFEST)
     if os.path.exists(path):
-        try:
-            with open(path, encoding="utf-8") as fh:
-                old = json.load(fh)
-        except (OSError, ValueError) as e:
-            raise SweepError(
-                f"{path}: unreadable sweep manifest ({e}); remove {out_dir} or use another --out"
-            ) from None
-        if old.get("sweep_hash") != sweep.digest:
-            raise SweepError(
-                f"{out_dir} holds another sweep (from {old.get('sweep_file', '?')}, hash "
-                f"{str(old.get('sweep_hash'))[:12]}; this sweep's hash is {sweep.digest[:12]}): "
-                "use another --out directory, or delete that one to start again"
-            )
+        fio._read_run_record(
+            path,
+            out_dir,
+            SweepError,
+            what="sweep manifest",
+            run="sweep",
+            digest=sweep.digest,
+            hash_key="sweep_hash",
+            source_key="sweep_file",
+        )
     elif os.path.exists(os.path.join(out_dir, RESULTS_CSV)):
         raise SweepError(f"{out_dir} holds a {RESULTS_CSV} without a {MANIFEST}: use another --out")
 
