@@ -754,6 +754,17 @@ def _require(r: _Reader, table: dict, path: str, keys, hints: dict) -> None:
             raise r.error(full, "missing required key" + hints.get(key, ""))
 
 
+def _write_atomic(path, text: str) -> None:
+    """Write a file through a flushed and fsync'ed temporary and a rename, so that an
+    interruption leaves the old file or the new one, never a torn one."""
+    tmp = path + ".tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
 def _read_run_record(path, out_dir, error, *, what, run, digest, hash_key, source_key) -> dict:
     """The JSON record a resumable run keeps in its output directory (a sweep's manifest,
     an optimisation's checkpoint), checked to belong to this `run` (same hash)."""

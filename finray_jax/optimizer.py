@@ -346,15 +346,6 @@ def _fmt(x) -> str:
     return repr(x) if math.isfinite(x) else "nan"
 
 
-def _fsync_write(path, text: str) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
 def _optimizer(problem: OptimizeProblem):
     import optax
 
@@ -407,7 +398,7 @@ def _save_checkpoint(problem: OptimizeProblem, out_dir: str, state: dict) -> Non
         "source": os.path.abspath(problem.source),
         "state": state,
     }
-    _fsync_write(os.path.join(out_dir, CHECKPOINT), json.dumps(record) + "\n")
+    fio._write_atomic(os.path.join(out_dir, CHECKPOINT), json.dumps(record) + "\n")
 
 
 def _truncate_rows(csv_path: str, header: str, rows: int) -> None:
@@ -503,7 +494,7 @@ def run_optimize(
             "done": False,
             "reason": "",
         }
-        _fsync_write(csv_path, header)
+        fio._write_atomic(csv_path, header)
     else:
         state = ck["state"]
         _truncate_rows(csv_path, header, state["rows"])
@@ -570,7 +561,7 @@ def run_optimize(
                 "values": np.asarray(aux["values"]).tolist(),
                 "margins": margins,
             }
-            _fsync_write(best_path, _best_toml(problem, x, k, objective))
+            fio._write_atomic(best_path, _best_toml(problem, x, k, objective))
         last = state["last"]
         small = last is not None and abs(objective - last) <= problem.tolerance * abs(objective)
         state["stall"] = state["stall"] + 1 if (small and feasible) else 0
@@ -670,7 +661,7 @@ def _write_result(problem: OptimizeProblem, run: OptimizeRun, out_dir: str, wall
         "reason": run.reason,
         "finray_jax_version": __version__,
     }
-    _fsync_write(os.path.join(out_dir, RESULT_JSON), json.dumps(payload, indent=2) + "\n")
+    fio._write_atomic(os.path.join(out_dir, RESULT_JSON), json.dumps(payload, indent=2) + "\n")
 
 
 def read_progress(csv_path) -> dict[str, np.ndarray]:

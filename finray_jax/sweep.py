@@ -218,15 +218,6 @@ def _parse(doc, r, source, base_dir) -> Sweep:
 # --------------------------------------------------------------------------------------
 
 
-def _fsync_write(path, text: str) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
 def _manifest(sweep: Sweep, finished: bool) -> dict:
     from . import __version__
 
@@ -267,7 +258,7 @@ def _resume(sweep: Sweep, csv_path: str, designs) -> int:
     that they are the first designs of this sweep."""
     header = ",".join(sweep.columns) + "\n"
     if not os.path.exists(csv_path):
-        _fsync_write(csv_path, header)
+        fio._write_atomic(csv_path, header)
         return 0
     with open(csv_path, "rb") as fh:
         data = fh.read()
@@ -371,7 +362,7 @@ def run_sweep(
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     _check_manifest(sweep, out_dir)
-    _fsync_write(
+    fio._write_atomic(
         os.path.join(out_dir, MANIFEST), json.dumps(_manifest(sweep, False), indent=2) + "\n"
     )
     csv_path = os.path.join(out_dir, RESULTS_CSV)
@@ -403,7 +394,7 @@ def run_sweep(
     figure = None
     data = read_results(csv_path)
     if done == sweep.size:
-        _fsync_write(
+        fio._write_atomic(
             os.path.join(out_dir, MANIFEST), json.dumps(_manifest(sweep, True), indent=2) + "\n"
         )
         if plot:
