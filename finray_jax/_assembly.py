@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._banded import BandPlan, plan_band
 from ._contact import ContactSpec, contact_spec, global_params
 from ._finger import BACK, FRONT, Finger, PointLoad, beam_lengths
 from ._geometry import Geometry, arc_point, section_stiffness
@@ -78,6 +79,12 @@ class Topology:
     @property
     def n_loads(self):
         return len({j for evs in self.events for kind, j in evs if kind in ("point", "dist_start")})
+
+    @functools.cached_property
+    def band(self) -> BandPlan:
+        """Banded ordering of the shooting Jacobian (see `_banded`)."""
+        md = self.model
+        return plan_band(_row_segments(self), md.n_unknown, self.n_segments)
 
     @functools.cached_property
     def layout(self) -> "_Layout":
@@ -145,6 +152,28 @@ def _build_index(topo: Topology) -> _Index:
         cb_src=i(cb_src),
         cb_sign=np.asarray(cb_sign),
     )
+
+
+def _row_segments(topo: Topology):
+    """For each residual row (in `Problem.residual_from_states` order), the segments whose
+    unknowns it reads. A slot i < S is the start of segment i, S + i its end (a function of
+    the same segment's start only: loads and contact act on the segment's own state)."""
+    S, ix = topo.n_segments, topo.index
+    half = topo.model.n_unknown // 2  # rows per base condition or kinematic pair
+    n_force = 2 if topo.mode == "planar" else 3
+    n_moment = half - n_force
+    rows = []
+    for b in (FRONT, BACK):
+        rows += [{topo.first[b]}] * half
+    for a, b in zip(ix.kin_a, ix.kin_b):
+        rows += [{int(a) % S, int(b) % S}] * half
+    wrench = [{int(a) % S, int(b) % S} for a, b in zip(ix.w_a, ix.w_b)]
+    for row, src in zip(ix.cb_rows, ix.cb_src):
+        wrench[int(row)].add(int(src) % S)
+    for per_row in (n_force, n_moment):
+        for deps in wrench:
+            rows += [deps] * per_row
+    return rows
 
 
 def _event_s(finger: Finger, beam: int, kind: str, index: int):

@@ -11,7 +11,9 @@ The segment flow has a custom JVP: each segment's own small Jacobian (state and 
 columns) is computed once per evaluation by forward mode, and tangents are pushed through
 it with a matrix product. Newton's Jacobian then costs one batched forward pass instead of
 one re-integration per unknown, and reverse mode works because the rule is linear in the
-tangents.
+tangents. Only the start state's own directions are integrated: a 3-D frame turns in three
+ways (not nine matrix entries), and without contact a translation of the start translates
+the end (no integration needed): 4 of 6 directions planar, 9 of 18 in 3-D.
 """
 
 import functools
@@ -26,7 +28,7 @@ import numpy as np
 from jax import lax
 
 from ._contact import ContactSpec, contact_load
-from ._rotation import exp_so3, frame_mismatch, hat, planar_frame
+from ._rotation import exp_so3, frame_mismatch, hat, planar_frame, vee
 
 
 class Integrator(eqx.Module):
@@ -111,6 +113,7 @@ class AbstractRodModel(eqx.Module):
     n_stiff: ClassVar[int]  # stiffness entries per sample
     n_head: ClassVar[int]  # parameters before the stiffness samples
     rotation_slice: ClassVar[slice]  # the rotation part of a segment's unknowns
+    position_slice: ClassVar[slice]  # the position part of a full state
 
     def split(self, q):
         """(stiffness samples, contact columns) of a parameter row."""
@@ -124,6 +127,22 @@ class AbstractRodModel(eqx.Module):
             return force, moment
         f, l = contact_load(self.contact, self.split(q)[1], p[::2], t[::2], tau)
         return force + jnp.stack([f[0], 0.0, f[1]]), moment + jnp.stack([0.0, l, 0.0])
+
+    # --- directions of a start state that the segment flow must be differentiated in ---
+    @property
+    def translation_free(self) -> bool:
+        """Without contact the flow commutes with translations: d(end)/d(start position)
+        is the identity on the position and zero elsewhere, so it needs no integration."""
+        return self.contact is None
+
+    def tangent_basis(self, y):
+        """(n_full, k) directions spanning every tangent of the start state y (position
+        directions left out when translation_free)."""
+        raise NotImplementedError
+
+    def tangent_coords(self, y, dy):
+        """(k,) coordinates of a tangent dy at y in `tangent_basis(y)`."""
+        raise NotImplementedError
 
 
 class PlanarRod(AbstractRodModel):
@@ -140,6 +159,7 @@ class PlanarRod(AbstractRodModel):
     n_stiff: ClassVar[int] = 3
     n_head: ClassVar[int] = 5
     rotation_slice: ClassVar[slice] = slice(2, 3)
+    position_slice: ClassVar[slice] = slice(0, 2)
 
     def pack(self, table):
         head = jnp.stack(
@@ -190,6 +210,13 @@ class PlanarRod(AbstractRodModel):
         return jnp.stack(
             [x + tx * r, z + tz * r, th, nx - fx * r, nz - fz * r, my - (tz * ax - tx * az)]
         )
+
+    def tangent_basis(self, y):
+        E = jnp.eye(6, dtype=y.dtype)
+        return E[:, 2:] if self.translation_free else E
+
+    def tangent_coords(self, y, dy):
+        return dy[2:] if self.translation_free else dy
 
     # --- accessors on full states ---
     @staticmethod
@@ -265,6 +292,7 @@ class SpatialRod(AbstractRodModel):
     n_stiff: ClassVar[int] = 6
     n_head: ClassVar[int] = 8
     rotation_slice: ClassVar[slice] = slice(3, 6)
+    position_slice: ClassVar[slice] = slice(0, 3)
 
     def pack(self, table):
         head = [table.length[:, None], table.rigid[:, None], table.force, table.precurvature]
@@ -277,10 +305,12 @@ class SpatialRod(AbstractRodModel):
         ustar = q[5:8]
         k = _stiffness_at(self, self.split(q)[0], tau)
         kse, kbt = k[0:3], k[3:6]
-        v = (R.T @ n) / kse + jnp.array([0.0, 0.0, 1.0])
-        u = (R.T @ m) / kbt + ustar
-        dp = R @ v
-        dR = R @ hat(u)
+        # Products written out elementwise: XLA's CPU backend runs batched 3x3 matmuls
+        # (these states are vmapped over segments and tangents) many times slower.
+        v = _dot(R.T, n) / kse + jnp.array([0.0, 0.0, 1.0])
+        u = _dot(R.T, m) / kbt + ustar
+        dp = _dot(R, v)
+        dR = jnp.cross(R, u)  # row i of R hat(u) is (row i of R) x u
         f, l = self.with_contact(q, y[0:3], R[:, 2], tau, q[2:5], jnp.zeros(3))
         return jnp.concatenate([dp, dR.reshape(9), -f, -jnp.cross(dp, n) - l])
 
@@ -292,6 +322,20 @@ class SpatialRod(AbstractRodModel):
         t = Rf.reshape(3, 3)[:, 2]
         a = n * r - 0.5 * f * r * r
         return jnp.concatenate([p + t * r, Rf, n - f * r, m - jnp.cross(t, a)])
+
+    def tangent_basis(self, y):
+        """Frame tangents are R hat(w): three directions instead of nine."""
+        R = y[3:12].reshape(3, 3)
+        e = jnp.eye(3, dtype=y.dtype)
+        turn = jnp.stack([(R @ hat(e[k])).reshape(9) for k in range(3)], axis=1)
+        E = jax.scipy.linalg.block_diag(e, turn, jnp.eye(6, dtype=y.dtype))
+        return E[:, 3:] if self.translation_free else E
+
+    def tangent_coords(self, y, dy):
+        A = y[3:12].reshape(3, 3).T @ dy[3:12].reshape(3, 3)
+        w = vee(0.5 * (A - A.T))
+        d = jnp.concatenate([dy[0:3], w, dy[12:18]])
+        return d[3:] if self.translation_free else d
 
     @staticmethod
     def full_from_unknown(y, theta_ref):
@@ -351,6 +395,11 @@ class SpatialRod(AbstractRodModel):
     def undeformed_unknown(point, theta):
         z = jnp.zeros_like(theta)
         return jnp.concatenate([point, jnp.stack([z, z, z, z, z, z, z, z, z])])
+
+
+def _dot(A, x):
+    """A @ x for a 3x3 A, as elementwise products and sums."""
+    return A[:, 0] * x[0] + A[:, 1] * x[1] + A[:, 2] * x[2]
 
 
 def rod_model(mode: str, tapered: bool = False, contact=None) -> AbstractRodModel:
@@ -448,26 +497,33 @@ def _segment_flow_jvp(model, integrator, primals, tangents):
     dY0, dQ = tangents
     zero = jax.custom_derivatives.SymbolicZero
     need_y, need_q = not isinstance(dY0, zero), not isinstance(dQ, zero)
-    argnums = tuple(i for i, need in ((0, need_y), (1, need_q)) if need)
-
-    def one(y, q):
-        def twice(a, b):
-            o = _integrate(model, integrator, a, b, False)
-            return o, o
-
-        jacs, out = jax.jacfwd(twice, argnums=argnums, has_aux=True)(y, q)
-        return out, jacs
-
-    if not argnums:
+    if not (need_y or need_q):
         out = segment_flow(model, integrator, Y0, Q)
         return out, jnp.zeros_like(out)
-    out, jacs = jax.vmap(one)(Y0, Q)
-    jacs = list(jacs)
+
+    def one(y, q):
+        # Differentiate along the start state's own tangent directions only (a frame
+        # turns in 3 ways, not 9; translations need no integration without contact).
+        E = model.tangent_basis(y)
+
+        def twice(d, b):
+            o = _integrate(model, integrator, y + E @ d, b, False)
+            return o, o
+
+        d0 = jnp.zeros(E.shape[1], y.dtype)
+        return jax.jacfwd(twice, argnums=(0, 1) if need_q else 0, has_aux=True)(d0, q)
+
+    jacs, out = jax.vmap(one)(Y0, Q)
+    jac_y, jac_q = jacs if need_q else (jacs, None)
     dout = jnp.zeros_like(out)
     if need_y:
-        dout = dout + jnp.einsum("sij,sj->si", jacs.pop(0), dY0)
+        d = jax.vmap(model.tangent_coords)(Y0, dY0)
+        dout = dout + jnp.einsum("sij,sj->si", jac_y, d)
+        if model.translation_free:
+            pos = model.position_slice
+            dout = dout.at[:, pos].add(dY0[:, pos])
     if need_q:
-        dout = dout + jnp.einsum("sij,sj->si", jacs.pop(0), dQ)
+        dout = dout + jnp.einsum("sij,sj->si", jac_q, dQ)
     return out, dout
 
 

@@ -357,3 +357,12 @@ def test_modified_adaptor_without_friction_pushes_the_object_out(grasps):
     assert tr.peak == 0.0 and "not held" in tr.message
     rough = fr.release_force(modified, step=4.0, friction=0.5)
     assert rough.peak > 0.1 * float(modified.contact.normal_force)
+
+
+def test_banded_newton_step_on_the_contact_jacobian(grasps):
+    """The banded solve's pattern and step on a grasp with objects and the support (many
+    short segments, stiff penalties): see test_banded."""
+    from test_banded import check_banded_step
+
+    g = grasps[1]
+    check_banded_step(g.finger, g.topology)

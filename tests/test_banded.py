@@ -1,0 +1,181 @@
+"""The banded Newton solve: its pattern covers the real Jacobian, it gives the dense LU's
+step and determinant sign, and the segment flow's reduced-direction JVP is exact."""
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import finray_jax as fr
+import finray_jax.io
+from finray_jax import _banded, _rod, _solve
+from finray_jax._rotation import exp_so3
+
+MODIFIED = fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+
+
+@pytest.fixture(scope="module")
+def grasped():
+    finger, _ = fr.io.load_finger("examples/finger1.toml")
+    finger = eqx.tree_at(lambda f: f.objects, finger.with_loads(), (fr.Circle((-11.0, 60.0), 9.0),))
+    finger = eqx.tree_at(lambda f: f.adaptor, finger, MODIFIED)
+    return fr.grasp(finger, 3.0)
+
+
+def _cases():
+    ref = fr.ref_finger_a("L1")
+    pinned = eqx.tree_at(
+        lambda f: f.adaptor, ref, fr.Adaptor(front_base="pinned", back_clamp_length=20.0)
+    )
+    out_of_plane = ref.with_loads(fr.PointLoad(beam=0, s=60.0, force=(0.05, 0.02, 0.0)))
+    return {
+        "refA-L1-planar": (ref, fr.topology_of(ref, "planar")),
+        "refA-L1-spatial": (ref, fr.topology_of(ref, "spatial")),
+        "refA-L3-planar": (fr.ref_finger_a("L3"), fr.topology_of(fr.ref_finger_a("L3"), "planar")),
+        "pinned-clamp-planar": (pinned, fr.topology_of(pinned, "planar")),
+        "out-of-plane-spatial": (out_of_plane, fr.topology_of(out_of_plane, "spatial")),
+    }
+
+
+# One case in the default suite (each compiles a Jacobian, a banded and a dense solve);
+# the contact case runs in test_contact on its grasps.
+CASES = ["refA-L1-planar"] + [
+    pytest.param(name, marks=pytest.mark.slow)
+    for name in (
+        "refA-L1-spatial",
+        "refA-L3-planar",
+        "pinned-clamp-planar",
+        "out-of-plane-spatial",
+        "grasp-support-planar",
+    )
+]
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_banded_step_equals_the_dense_step(request, name):
+    if name == "grasp-support-planar":
+        g = request.getfixturevalue("grasped")
+        check_banded_step(g.finger, g.topology)
+    else:
+        check_banded_step(*_cases()[name])
+
+
+def check_banded_step(finger, topo):
+    problem = _solve._make_problem(topo, fr.Integrator(), finger)
+    rng = np.random.default_rng(0)
+    y = problem.undeformed().reshape(-1)
+    y = y + 1e-2 * jnp.asarray(rng.standard_normal(y.shape))  # away from any symmetry
+    lam = jnp.asarray(0.7)
+    plan = topo.band
+
+    @eqx.filter_jit
+    def everything(problem, y):
+        fn = lambda y: _solve._natural_fn(y, (problem, lam))
+        r, A = _banded.linearize(plan, fn, y)
+        dy, r2, sign = _solve._newton_step(problem, lam, y, "banded")
+        return jax.jacfwd(fn)(y), r, A, dy, r2, sign
+
+    J, r, A, dy, r2, sign = (np.asarray(x) for x in everything(problem, y))
+    # The static pattern (from the topology alone) holds every non-zero of the Jacobian.
+    assert _banded.covers(plan, J)
+    assert plan.kl + plan.ku + 1 < plan.n  # and it is a real band, not the whole matrix
+    # The band assembled from one tangent per colour is the Jacobian itself.
+    np.testing.assert_allclose(A, np.asarray(_banded.pad(plan, J)), rtol=1e-12, atol=1e-12)
+    # Newton's step solves J dy = r as well as a dense LU does (backward error at round-off;
+    # the contact Jacobian is too ill-conditioned to compare the steps themselves closely),
+    # and the sign of det J (which marks folds) is the same.
+    np.testing.assert_array_equal(r2, r)
+    backward = np.max(np.abs(J @ dy - r)) / (np.max(np.abs(J)) * np.max(np.abs(dy)))
+    assert backward < 1e-13
+    dense = np.linalg.solve(J, r)
+    forward = np.max(np.abs(dy - dense)) / np.max(np.abs(dense))
+    assert forward < 1e-14 * np.linalg.cond(J)
+    assert float(sign) == np.linalg.slogdet(J)[0]
+
+
+def test_banded_lu_on_a_hidden_band_matrix():
+    """A random block-tridiagonal matrix with its blocks renumbered at random: the plan
+    finds the band again, and solve and sign match numpy."""
+    rng = np.random.default_rng(1)
+    nb, blocks = 3, 20
+    hidden = rng.permutation(blocks)
+    row_blocks = []
+    for k in range(blocks):  # block row k reads hidden blocks k-1, k, k+1
+        row_blocks += [{int(hidden[j]) for j in (k - 1, k, k + 1) if 0 <= j < blocks}] * nb
+    n = nb * blocks
+    J = np.zeros((n, n))
+    for i, deps in enumerate(row_blocks):
+        for b in deps:
+            J[i, b * nb : (b + 1) * nb] = rng.standard_normal(nb)
+    plan = _banded.plan_band(row_blocks, nb, blocks)
+    assert _banded.covers(plan, J)
+    assert plan.kl + plan.ku <= 6 * nb  # a band of a few blocks, not n = 60
+    b = rng.standard_normal(n)
+    fac = _banded.factor(plan, _banded.pad(plan, jnp.asarray(J)))
+    x = _banded.solve_factored(plan, fac, jnp.asarray(b))
+    np.testing.assert_allclose(np.asarray(x), np.linalg.solve(J, b), rtol=1e-9, atol=1e-9)
+    assert float(fac.sign) == np.linalg.slogdet(J)[0]
+
+
+@pytest.mark.parametrize("mode", ["planar", pytest.param("spatial", marks=pytest.mark.slow)])
+def test_both_linear_solvers_give_the_same_equilibrium(mode):
+    finger = fr.ref_finger_a("L1")
+    a = fr.solve_finger(finger, mode=mode, options=fr.SolverOptions(linear_solver="dense"))
+    b = fr.solve_finger(finger, mode=mode, options=fr.SolverOptions(linear_solver="banded"))
+    assert a.converged and b.converged
+    np.testing.assert_allclose(b.tip.displacement, a.tip.displacement, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(b.reactions_back.force, a.reactions_back.force, rtol=0, atol=1e-10)
+
+
+def test_unknown_linear_solver_is_named():
+    with pytest.raises(ValueError, match="linear_solver.*'lu'"):
+        fr.SolverOptions(linear_solver="lu")
+
+
+def _flow_jvps(model, Y0u, theta, Q, dYu, dQ):
+    """JVP of the segment flow (custom rule) and of plain autodiff through the integrator,
+    with start states built from unknowns (so frame tangents lie on SO(3))."""
+    integ = fr.Integrator()
+    full = lambda yu: jax.vmap(model.full_from_unknown)(yu, theta)
+    custom = lambda yu, q: _rod.segment_flow(model, integ, full(yu), q)
+    plain = lambda yu, q: jax.vmap(lambda y, qq: _rod._integrate(model, integ, y, qq, False))(
+        full(yu), q
+    )
+    both = jax.jit(lambda *a: (jax.jvp(custom, a[:2], a[2:])[1], jax.jvp(plain, a[:2], a[2:])[1]))
+    return both(Y0u, Q, dYu, dQ)
+
+
+@pytest.mark.slow  # (the default suite's gradient and closed-form tests run through it)
+@pytest.mark.parametrize("mode", ["planar", "spatial"])
+def test_reduced_direction_flow_jvp_is_exact(grasped, mode):
+    rng = np.random.default_rng(2)
+    for finger, topo in (
+        (fr.ref_finger_a("L1"), fr.topology_of(fr.ref_finger_a("L1"), mode)),
+        (grasped.finger, dataclasses.replace(grasped.topology, mode=mode)),
+    ):
+        problem = _solve._make_problem(topo, fr.Integrator(), finger)
+        model = problem.model
+        Y = problem.undeformed() * problem.scale()
+        Y = Y + 1e-2 * jnp.asarray(rng.standard_normal(Y.shape)) * problem.scale()
+        Q = problem.params(1.0)
+        dY = jnp.asarray(rng.standard_normal(Y.shape))
+        dQ = 1e-3 * jnp.asarray(rng.standard_normal(Q.shape))
+        a, b = _flow_jvps(model, Y, problem.table.theta, Q, dY, dQ)
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-10, atol=1e-10)
+        assert model.translation_free == (topo.contact is None)
+
+
+def test_spatial_tangent_basis_spans_frame_tangents():
+    rng = np.random.default_rng(3)
+    model = _rod.SpatialRod()
+    R = exp_so3(jnp.asarray(rng.standard_normal(3)))
+    y = jnp.concatenate([jnp.ones(3), R.reshape(9), jnp.arange(6.0)])
+    w = jnp.asarray(rng.standard_normal(3))
+    dR = R @ jnp.asarray([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    dy = jnp.concatenate([jnp.zeros(3), dR.reshape(9), jnp.asarray(rng.standard_normal(6))])
+    E, d = model.tangent_basis(y), model.tangent_coords(y, dy)
+    assert E.shape == (18, 9) and d.shape == (9,)
+    np.testing.assert_allclose(np.asarray(E @ d), np.asarray(dy), atol=1e-14)
