@@ -5,8 +5,9 @@ Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   cold solve (from the undeformed guess), median of repeats,
   warm re-solve after a 1 % change of the back-beam thickness, starting from the previous
   solution (init=...), median of repeats.
-A baseline (the same solve through `diffrax.diffeqsolve` instead of the tableau stepper)
-is timed in the same run for L1, so figures from noisy machines can be compared.
+Baselines timed in the same run for L1, so figures from noisy machines can be compared:
+the same solve through `diffrax.diffeqsolve` instead of the tableau stepper, and with
+the dense LU (`SolverOptions(linear_solver="dense")`) instead of the banded one.
 
 Run:  taskset -c 0 .venv/bin/python benchmarks/solve.py [--quick]
 """
@@ -22,10 +23,9 @@ import finray_jax as fr
 from finray_jax import _solve
 
 
-def bench_case(case, mode, integrator=fr.Integrator(), repeats=15):
+def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.SolverOptions()):
     finger = fr.ref_finger_a(case)
     topo = fr.topology_of(finger, mode)
-    opts = fr.SolverOptions()
     t0 = time.perf_counter()
     sol = jax.block_until_ready(_solve._solve_core(topo, integrator, opts, finger, None))
     compile_s = time.perf_counter() - t0
@@ -56,6 +56,7 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15):
         "repeats": [n_cold, n_warm],
         "steps_per_segment": integrator.steps,
         "backend": integrator.backend,
+        "linear_solver": opts.linear_solver,
     }
 
 
@@ -81,9 +82,23 @@ def main():
         f"baseline diffeqsolve L1 planar: compile {base['compile_s']:.1f} s  cold "
         f"{base['cold_ms']:.2f} ms  warm {base['warm_ms']:.2f} ms"
     )
+    dense = []
+    for mode in ("planar", "spatial"):
+        d = bench_case("L1", mode, repeats=5, opts=fr.SolverOptions(linear_solver="dense"))
+        dense.append(d)
+        print(
+            f"baseline dense LU L1 {mode}: compile {d['compile_s']:.1f} s  cold "
+            f"{d['cold_ms']:.2f} ms  warm {d['warm_ms']:.2f} ms"
+        )
     path = write(
         "solve",
-        {"pinned_cores": cores, "machine": machine(), "rows": rows, "baseline_diffeqsolve": base},
+        {
+            "pinned_cores": cores,
+            "machine": machine(),
+            "rows": rows,
+            "baseline_diffeqsolve": base,
+            "baseline_dense_lu": dense,
+        },
     )
     print(f"wrote {path}")
 

@@ -36,6 +36,7 @@ from . import (
     SolverOptions,
     validate_finger,
 )
+from ._solve import LINEAR_SOLVERS
 
 __all__ = [
     "FingerFileError",
@@ -588,6 +589,8 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
         path, v = f"solver.{f.name}", tbl[f.name]
         if isinstance(f.default, bool):
             opts[f.name] = r.boolean(v, path)
+        elif f.name == "linear_solver":
+            opts[f.name] = r.string(v, path, LINEAR_SOLVERS)
         elif isinstance(f.default, int):
             opts[f.name] = r.integer(v, path, minimum=1)
         else:
@@ -972,6 +975,8 @@ def _settings_toml(settings: SolveSettings) -> list[str]:
             continue
         if isinstance(f.default, bool):
             out.append(f"{f.name} = {'true' if v else 'false'}")
+        elif isinstance(f.default, str):
+            out.append(f"{f.name} = {_ts(v)}")
         elif isinstance(f.default, int):
             out.append(f"{f.name} = {int(v)}")
         else:

@@ -396,6 +396,7 @@ def test_solver_settings():
         "rtol": 1e-9,
         "max_newton_steps": 30,
         "max_continuation_steps": 50,
+        "linear_solver": "dense",
     }
     d["meta"] = {"name": "test", "description": "a test finger"}
     _, s = load(d)
@@ -405,6 +406,7 @@ def test_solver_settings():
     assert s.integrator.steps == 20
     assert s.options.rtol == 1e-9 and s.options.atol == fr.SolverOptions().atol
     assert s.options.max_newton_steps == 30 and s.options.max_continuation_steps == 50
+    assert s.options.linear_solver == "dense"
     assert (s.name, s.description) == ("test", "a test finger")
     assert s.solve_kwargs()["mode"] == "spatial"
 
@@ -413,6 +415,12 @@ def test_bad_solver_mode():
     d = doc()
     d["solver"] = {"mode": "3d"}
     assert_error(d, 'solver.mode = "3d"', "planar")
+
+
+def test_bad_linear_solver():
+    d = doc()
+    d["solver"] = {"linear_solver": "sparse"}
+    assert_error(d, 'solver.linear_solver = "sparse"', "banded")
 
 
 def test_bad_integrator():
