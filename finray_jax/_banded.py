@@ -144,12 +144,29 @@ def _sizes(plan: BandPlan):
     return nb, steps, h, w, steps * nb + plan.kl + plan.ku
 
 
-def linearize(plan: BandPlan, fn, y):
-    """fn(y) and its Jacobian, padded and permuted into band order (P, P): one forward
-    pass with `n_colors` tangents, scattered into the band."""
+def compressed(plan: BandPlan, fn, y):
+    """fn(y) and J S (n, n_colors): the Jacobian times the colour seeds, one forward pass
+    with `n_colors` tangents."""
     r, jvp = jax.linearize(fn, y)
-    JS = jax.vmap(jvp, in_axes=1, out_axes=1)(jnp.asarray(plan.colors, y.dtype))
-    return r, _banded_matrix(plan, JS[plan.entries[0], plan.entries[1]])
+    return r, jax.vmap(jvp, in_axes=1, out_axes=1)(jnp.asarray(plan.colors, y.dtype))
+
+
+def linearize(plan: BandPlan, fn, y):
+    """fn(y) and its Jacobian, padded and permuted into band order (P, P)."""
+    r, JS = compressed(plan, fn, y)
+    return r, band(plan, JS)
+
+
+def dense(plan: BandPlan, JS):
+    """The Jacobian (n, n), in the original order, from its compressed form."""
+    src_row, src_color, _, dst_j = plan.entries
+    J = jnp.zeros((plan.n, plan.n), JS.dtype)
+    return J.at[src_row, plan.cols[dst_j]].set(JS[src_row, src_color])
+
+
+def band(plan: BandPlan, JS):
+    """The padded band-ordered matrix (P, P) from the compressed Jacobian."""
+    return _banded_matrix(plan, JS[plan.entries[0], plan.entries[1]])
 
 
 def _banded_matrix(plan: BandPlan, values):

@@ -245,14 +245,24 @@ def _jacobians(problem, y, lam):
     return J, Jl
 
 
-def _tangent(problem, y, lam, w, t_prev):
+def _tangent(problem, y, lam, w, t_prev, linear_solver):
     """Unit tangent of the equilibrium path in (w y, lam), oriented along t_prev, and the
-    sign of det(dr/dy) at (y, lam), which flips exactly at folds of the path."""
-    J, Jl = _jacobians(problem, y, lam)
+    sign of det(dr/dy) at (y, lam), which flips exactly at folds of the path. (The
+    bordered system is solved densely; with the banded option, J comes from the coloured
+    forward pass and the sign from its banded LU.)"""
+    if linear_solver == "banded":
+        plan = problem.topo.band
+        _, JS = _banded.compressed(plan, lambda a: _natural_fn(a, (problem, lam)), y)
+        J = _banded.dense(plan, JS)
+        Jl = jax.jvp(lambda b: _natural_fn(y, (problem, b)), (lam,), (jnp.ones_like(lam),))[1]
+        sign = _banded.factor(plan, _banded.band(plan, JS)).sign
+    else:
+        J, Jl = _jacobians(problem, y, lam)
+        sign = jnp.linalg.slogdet(J)[0]
     A = jnp.concatenate([jnp.concatenate([J / w, Jl[:, None]], axis=1), t_prev[None]], axis=0)
     rhs = jnp.zeros(A.shape[0]).at[-1].set(1.0)
     t = jnp.linalg.solve(A, rhs)
-    return t / jnp.linalg.norm(t), jnp.linalg.slogdet(J)[0]
+    return t / jnp.linalg.norm(t), sign
 
 
 def _arc_fn(z, args):
@@ -288,7 +298,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
     n = y0.shape[0]
     lam0 = jnp.zeros(())
     e = jnp.zeros(n + 1).at[-1].set(1.0)
-    t_raw, sign0 = _tangent(problem, y0, lam0, 1.0, e)
+    t_raw, sign0 = _tangent(problem, y0, lam0, 1.0, e, options.linear_solver)
     # Weight the shape part so the first tangent has equal shape and load parts; the
     # tangent in the weighted coordinates (w y, lam) is the raw one rescaled.
     w = jnp.abs(t_raw[-1]) / jnp.maximum(jnp.linalg.norm(t_raw[:-1]), 1e-30)
@@ -303,7 +313,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         pred = (s.y + s.ds * s.t[:-1] / w, s.lam + s.ds * s.t[-1])
         z, ok, nit = _newton(_arc_fn, pred, (problem, s.y, s.lam, s.t, s.ds, w), opts)
         y1, lam1 = z
-        t1, sign1 = _tangent(problem, y1, lam1, w, s.t)
+        t1, sign1 = _tangent(problem, y1, lam1, w, s.t, opts.linear_solver)
         # A step that turns the tangent sharply, or needs many corrector iterations, may
         # have jumped to another branch: retry shorter. On the traced branch det(dr/dy)
         # keeps its sign until the fold, where the load factor turns back; a sign change

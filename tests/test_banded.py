@@ -76,14 +76,16 @@ def check_banded_step(finger, topo):
         fn = lambda y: _solve._natural_fn(y, (problem, lam))
         r, A = _banded.linearize(plan, fn, y)
         dy, r2, sign = _solve._newton_step(problem, lam, y, "banded")
-        return jax.jacfwd(fn)(y), r, A, dy, r2, sign
+        Jc = _banded.dense(plan, _banded.compressed(plan, fn, y)[1])
+        return jax.jacfwd(fn)(y), r, A, dy, r2, sign, Jc
 
-    J, r, A, dy, r2, sign = (np.asarray(x) for x in everything(problem, y))
+    J, r, A, dy, r2, sign, Jc = (np.asarray(x) for x in everything(problem, y))
     # The static pattern (from the topology alone) holds every non-zero of the Jacobian.
     assert _banded.covers(plan, J)
     assert plan.kl + plan.ku + 1 < plan.n  # and it is a real band, not the whole matrix
     # The band assembled from one tangent per colour is the Jacobian itself.
     np.testing.assert_allclose(A, np.asarray(_banded.pad(plan, J)), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(Jc, J, rtol=1e-12, atol=1e-12)
     # Newton's step solves J dy = r as well as a dense LU does (backward error at round-off;
     # the contact Jacobian is too ill-conditioned to compare the steps themselves closely),
     # and the sign of det J (which marks folds) is the same.
