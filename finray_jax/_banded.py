@@ -209,7 +209,8 @@ def solve(plan: BandPlan, fac: BandLU, b):
     """x with A x = b for the factored A."""
     nb, steps, h, w, P = _sizes(plan)
     n = plan.n
-    bp = jnp.zeros(P, b.dtype).at[:n].set(b)
+    bp = jnp.concatenate([b, jnp.zeros(P - n, b.dtype)])  # (gathers and slices only:
+    # the solve is transposed when reverse mode differentiates through it)
 
     def forward(k, bp):
         c0 = k * nb
@@ -240,4 +241,4 @@ def pad(plan: BandPlan, J):
 def solve_factored(plan: BandPlan, fac: BandLU, r):
     """x with J x = r, J factored by `factor` (in band order)."""
     z = solve(plan, fac, r[plan.rows])
-    return jnp.zeros_like(z).at[plan.cols].set(z)
+    return z[np.argsort(plan.cols)]

@@ -231,13 +231,39 @@ def _root_rewrite(root, residual, inputs):
     return _natural_fn(root, (problem, lam))
 
 
-def _attach_implicit_gradient(problem, lam, y):
-    """Return y (a root of the residual) with tangents from the implicit function theorem."""
+def _attach_implicit_gradient(problem, lam, y, linear_solver):
+    """Return y (a root of the residual) with tangents from the implicit function theorem:
+    dy = -J^-1 (dr/d(design, lam)) d(design, lam)."""
     y = lax.stop_gradient(y)
+    if linear_solver == "banded":
+        return _implicit_root(problem, lam, y)
     root, _ = optx.internal.implicit_jvp(
         _root_primal, _root_rewrite, (problem, lam, y), frozenset(), lx.LU()
     )
     return root
+
+
+@eqx.filter_custom_jvp
+def _implicit_root(problem, lam, y):
+    return y
+
+
+@_implicit_root.def_jvp
+def _implicit_root_jvp(primals, tangents):
+    """The banded LU of J solves for the tangent; the solve is linear in the tangent and
+    built of transposable operations (gathers, triangular solves, static loops), so
+    reverse mode transposes it."""
+    problem, lam, y = primals
+    d_problem, d_lam, _ = tangents
+    _, r_dot = eqx.filter_jvp(
+        lambda p, l: _natural_fn(y, (p, l)), (problem, lam), (d_problem, d_lam)
+    )
+    if r_dot is None:
+        return y, jnp.zeros_like(y)
+    plan = problem.topo.band
+    _, A = _banded.linearize(plan, lambda a: _natural_fn(a, (problem, lam)), y)
+    fac = jax.tree_util.tree_map(lax.stop_gradient, _banded.factor(plan, A))
+    return y, -_banded.solve_factored(plan, fac, r_dot)
 
 
 def _jacobians(problem, y, lam):
@@ -404,7 +430,7 @@ def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init)
     _, y_start = _start(quiet, init)
     direct, ok = _direct(quiet, y_start, options)
     one = jnp.ones(())
-    y = _attach_implicit_gradient(problem, one, direct.y)
+    y = _attach_implicit_gradient(problem, one, direct.y, options.linear_solver)
     code = RESULTS.where(ok, RESULTS.successful, RESULTS.nonlinear_divergence)
     return _outputs(problem, y, one, code, direct.k), ok
 
@@ -440,7 +466,7 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     else:
         y, lam_end, code, iterations = continuation(jnp.asarray(True))
 
-    y = _attach_implicit_gradient(problem, lam_end, y)
+    y = _attach_implicit_gradient(problem, lam_end, y, options.linear_solver)
     return _outputs(problem, y, lam_end, code, iterations)
 
 
