@@ -48,7 +48,7 @@ class FoldOptions(eqx.Module):
     residual_tol: the refined fold is accepted when its largest scaled residual is below.
     """
 
-    max_secant_steps: int = eqx.field(static=True, default=12)
+    max_secant_steps: int = eqx.field(static=True, default=20)
     max_newton_steps: int = eqx.field(static=True, default=12)
     first_step: float = eqx.field(static=True, default=1e-3)
     step_tol: float = eqx.field(static=True, default=1e-11)

@@ -326,18 +326,7 @@ def fold_derivatives(load):
 
 @pytest.fixture(
     scope="module",
-    params=[
-        "L2",
-        pytest.param(
-            "L3",
-            marks=pytest.mark.xfail(
-                reason="known: _fold's refinement reports 'not converged' on one perturbed "
-                "fold (front_s[2] + 5e-4) although R = 2.5e-13 and dlam/deta ~ 1e-16: its "
-                "stopping rule, not the physics (open)",
-                strict=False,
-            ),
-        ),
-    ],
+    params=["L2", "L3"],
 )
 def fold_derivs(request):
     return fold_derivatives(request.param)
