@@ -229,7 +229,7 @@ def solve(plan: BandPlan, fac: BandLU, b):
         return lax.dynamic_update_slice(x, xb, (c0,))
 
     bp = lax.fori_loop(0, steps, forward, bp)
-    x = lax.fori_loop(0, steps, backward, jnp.zeros(P + w, b.dtype))
+    x = lax.fori_loop(0, steps, backward, jnp.zeros(P, b.dtype))  # c0 + w <= P
     return x[:n]
 
 

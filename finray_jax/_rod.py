@@ -511,10 +511,12 @@ def _segment_flow_jvp(model, integrator, primals, tangents):
             return o, o
 
         d0 = jnp.zeros(E.shape[1], y.dtype)
-        return jax.jacfwd(twice, argnums=(0, 1) if need_q else 0, has_aux=True)(d0, q)
+        return jax.jacfwd(twice, argnums=argnums, has_aux=True)(d0, q)
 
+    argnums = tuple(i for i, need in ((0, need_y), (1, need_q)) if need)
     jacs, out = jax.vmap(one)(Y0, Q)
-    jac_y, jac_q = jacs if need_q else (jacs, None)
+    jac_y = jacs[0] if need_y else None
+    jac_q = jacs[-1] if need_q else None
     dout = jnp.zeros_like(out)
     if need_y:
         d = jax.vmap(model.tangent_coords)(Y0, dY0)

@@ -53,7 +53,9 @@ class SolverOptions(eqx.Module):
         tangents for planar ref-A instead of 144) straight into band order and factored
         by banded LU with partial pivoting (`_banded`); "dense": `jax.jacfwd` with one
         tangent per unknown and a dense LU. Both give the same Newton steps to round-off.
-        (The continuation's tangent and the implicit gradient use dense solves.)
+        With "banded" the implicit gradient solves with the banded factors too, and the
+        continuation's tangent takes J and the sign of det J from them (its bordered
+        system, and the continuation's corrector, stay dense).
     """
 
     rtol: float = eqx.field(static=True, default=1e-10)
@@ -262,7 +264,7 @@ def _implicit_root_jvp(primals, tangents):
         return y, jnp.zeros_like(y)
     plan = problem.topo.band
     _, A = _banded.linearize(plan, lambda a: _natural_fn(a, (problem, lam)), y)
-    fac = jax.tree_util.tree_map(lax.stop_gradient, _banded.factor(plan, A))
+    fac = lax.stop_gradient(_banded.factor(plan, A))
     return y, -_banded.solve_factored(plan, fac, r_dot)
 
 
