@@ -261,7 +261,8 @@ def main():
                 f"grad tip x {1e3 * r['value_and_grad_tip_x']['s']:8.2f} ms "
                 f"({r['value_and_grad_tip_x']['ratio_to_forward']:.2f}x) | grad reaction x "
                 f"({r['value_and_grad_reaction_x']['ratio_to_forward']:.2f}x) | both "
-                f"{1e3 * r['jacrev_both']['s']:8.2f} ms ({r['jacrev_both']['ratio_to_forward']:.2f}x)"
+                f"{1e3 * r['jacrev_both']['s']:8.2f} ms "
+                f"({r['jacrev_both']['ratio_to_forward']:.2f}x)"
             )
         print(
             f"{case} SciPy FD (11 solves): {e['scipy_fd']['total_s']:.2f} s = "

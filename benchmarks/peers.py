@@ -76,12 +76,16 @@ def finray_rows(repeats):
             first = time.perf_counter() - t0
             reps = repeats if mode == "planar" else max(3, repeats // 3)
             cold, n_cold = median_time(
-                lambda: jax.block_until_ready(_solve(finger, None, topo, mode)), reps, 0.3
+                lambda f=finger, t=topo, m=mode: jax.block_until_ready(_solve(f, None, t, m)),
+                reps,
+                0.3,
             )
             thick = thicker_back(finger)
             wsol = jax.block_until_ready(_solve(thick, sol, topo, mode))
             warm, n_warm = median_time(
-                lambda: jax.block_until_ready(_solve(thick, sol, topo, mode)), reps, 0.3
+                lambda f=thick, s=sol, t=topo, m=mode: jax.block_until_ready(_solve(f, s, t, m)),
+                reps,
+                0.3,
             )
             tip = np.asarray(sol.tip.displacement)[[0, 2]]
             rows[(mode, case)] = {
@@ -168,7 +172,7 @@ def opensees_rows(ref_tips, repeats):
     for h in (chosen, finer):
         for case in CASES:
             n = meshes[chosen][case]["load_steps"] if h == chosen else fewest_steps(h, case)[0]
-            t, k = median_time(lambda: opensees_solve(h, case, n), repeats, 0.5)
+            t, k = median_time(lambda h=h, c=case, n=n: opensees_solve(h, c, n), repeats, 0.5)
             tip, fg = opensees_solve(h, case, n)
             rows[(h, case)] = {
                 "case": case,

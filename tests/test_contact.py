@@ -135,7 +135,7 @@ def test_tip_pressed_onto_a_wall_converges_to_rigid_contact():
     for k in (0.01, 0.1, 1.0):
         finger = _cantilever_finger([wall], k, [load])
         stepper = _Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
-        t, sol, ok = stepper.follow(lambda u: finger.scale_loads(u), 0.0, 1.0, None, 0.25, 1e-4)
+        t, sol, ok = stepper.follow(finger.scale_loads, 0.0, 1.0, None, 0.25, 1e-4)
         assert ok and t == 1.0
         res = fr.contact_result(finger, sol, (-1.0, 0.0))
         errors.append(abs(float(res.force[0]) - rigid) / rigid)

@@ -473,7 +473,7 @@ def check_elastica(n_el, shear_k, alpha=2.0, nsteps=50, L=100.0, t=1.5):
     ops.pattern("Plain", 1, 1)
     ops.load(tip, 0.0, -P, 0.0)  # dead load, perpendicular to the undeformed axis
     static_analysis(("LoadControl", 1.0 / nsteps))
-    for k in range(nsteps):
+    for _ in range(nsteps):
         if ops.analyze(1) != 0:
             raise RuntimeError("elastica check failed")
     return {
