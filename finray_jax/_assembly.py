@@ -495,10 +495,12 @@ class Problem(eqx.Module):
             jm = jm.at[ix.cb_rows].add(ix.cb_sign[:, None] * moment[ix.cb_src])
         return jf, jm
 
-    def trajectories(self, Y, lam):
-        """Per-segment states along s: (S, steps + 2, n_full) and matching arc lengths."""
+    def trajectories(self, Y, lam, traj=None):
+        """Per-segment states along s: (S, steps + 2, n_full) and matching arc lengths.
+        `traj` (S, steps + 1, n_full), the integrated part, when it is already known."""
         starts = self.start_states(Y)
-        traj = segment_trajectories(self.model, self.integrator, starts, self.params(lam))
+        if traj is None:
+            traj = segment_trajectories(self.model, self.integrator, starts, self.params(lam))
         traj = jnp.concatenate([starts[:, None], traj], axis=1)
         t = self.table
         n = traj.shape[1] - 2

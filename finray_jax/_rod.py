@@ -492,6 +492,46 @@ def segment_flow(model, integrator, Y0, Q):
     return jax.vmap(lambda y, q: _integrate(model, integrator, y, q, False))(Y0, Q)
 
 
+def flow_jacobians(model, integrator, Y0, Q, need_y=True, need_q=True, save_all=False):
+    """Integrate every segment with the Jacobians of its output (the end state, or with
+    `save_all` the states at every step point) with respect to the start state's own
+    tangent coordinates (`tangent_coords`) and to the parameters: one forward pass with
+    those directions. Returns (out, jac_y, jac_q); a Jacobian not asked for is None."""
+
+    def one(y, q):
+        # Differentiate along the start state's own tangent directions only (a frame
+        # turns in 3 ways, not 9; translations need no integration without contact).
+        E = model.tangent_basis(y)
+
+        def twice(d, b):
+            o = _integrate(model, integrator, y + E @ d, b, save_all)
+            return o, o
+
+        d0 = jnp.zeros(E.shape[1], y.dtype)
+        return jax.jacfwd(twice, argnums=argnums, has_aux=True)(d0, q)
+
+    argnums = tuple(i for i, need in ((0, need_y), (1, need_q)) if need)
+    jacs, out = jax.vmap(one)(Y0, Q)
+    return out, (jacs[0] if need_y else None), (jacs[-1] if need_q else None)
+
+
+def apply_flow_jacobians(model, Y0, dY0, dQ, jac_y, jac_q):
+    """The tangent of `flow_jacobians`' output for start-state and parameter tangents
+    dY0, dQ (either may be None): linear in them, so reverse mode transposes it."""
+    shape = (jac_y if jac_y is not None else jac_q).shape[:-1]
+    dout = jnp.zeros(shape, (jac_y if jac_y is not None else jac_q).dtype)
+    if dY0 is not None:
+        d = jax.vmap(model.tangent_coords)(Y0, dY0)
+        dout = dout + jnp.einsum("s...j,sj->s...", jac_y, d)
+        if model.translation_free:  # a start translation moves every point alike
+            pos = model.position_slice
+            shift = dY0[:, pos].reshape((shape[0],) + (1,) * (len(shape) - 2) + (-1,))
+            dout = dout.at[..., pos].add(shift)
+    if dQ is not None:
+        dout = dout + jnp.einsum("s...j,sj->s...", jac_q, dQ)
+    return dout
+
+
 def _segment_flow_jvp(model, integrator, primals, tangents):
     Y0, Q = primals
     dY0, dQ = tangents
@@ -500,32 +540,10 @@ def _segment_flow_jvp(model, integrator, primals, tangents):
     if not (need_y or need_q):
         out = segment_flow(model, integrator, Y0, Q)
         return out, jnp.zeros_like(out)
-
-    def one(y, q):
-        # Differentiate along the start state's own tangent directions only (a frame
-        # turns in 3 ways, not 9; translations need no integration without contact).
-        E = model.tangent_basis(y)
-
-        def twice(d, b):
-            o = _integrate(model, integrator, y + E @ d, b, False)
-            return o, o
-
-        d0 = jnp.zeros(E.shape[1], y.dtype)
-        return jax.jacfwd(twice, argnums=argnums, has_aux=True)(d0, q)
-
-    argnums = tuple(i for i, need in ((0, need_y), (1, need_q)) if need)
-    jacs, out = jax.vmap(one)(Y0, Q)
-    jac_y = jacs[0] if need_y else None
-    jac_q = jacs[-1] if need_q else None
-    dout = jnp.zeros_like(out)
-    if need_y:
-        d = jax.vmap(model.tangent_coords)(Y0, dY0)
-        dout = dout + jnp.einsum("sij,sj->si", jac_y, d)
-        if model.translation_free:
-            pos = model.position_slice
-            dout = dout.at[:, pos].add(dY0[:, pos])
-    if need_q:
-        dout = dout + jnp.einsum("sij,sj->si", jac_q, dQ)
+    out, jac_y, jac_q = flow_jacobians(model, integrator, Y0, Q, need_y, need_q)
+    dout = apply_flow_jacobians(
+        model, Y0, dY0 if need_y else None, dQ if need_q else None, jac_y, jac_q
+    )
     return out, dout
 
 

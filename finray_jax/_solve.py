@@ -13,7 +13,7 @@ from . import _banded
 from ._assembly import Problem, build_topology, segment_table
 from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
 from ._geometry import arc_point, geometry
-from ._rod import Integrator
+from ._rod import Integrator, apply_flow_jacobians, flow_jacobians, segment_trajectories
 from ._rotation import log_so3, planar_frame
 from ._solution import (
     RESULTS,
@@ -234,38 +234,80 @@ def _root_rewrite(root, residual, inputs):
 
 
 def _attach_implicit_gradient(problem, lam, y, linear_solver):
-    """Return y (a root of the residual) with tangents from the implicit function theorem:
-    dy = -J^-1 (dr/d(design, lam)) d(design, lam)."""
+    """Return y (a root of the residual) with tangents from the implicit function theorem,
+    dy = -J^-1 (dr/d(design, lam)) d(design, lam), and the segments' trajectories at it
+    (S, steps + 1, n_full) with their tangents, or None (the dense option: the outputs
+    then integrate them, and differentiate through the integrator)."""
     y = lax.stop_gradient(y)
     if linear_solver == "banded":
         return _implicit_root(problem, lam, y)
     root, _ = optx.internal.implicit_jvp(
         _root_primal, _root_rewrite, (problem, lam, y), frozenset(), lx.LU()
     )
-    return root
+    return root, None
+
+
+def _root_trajectories(problem, lam, y):
+    Y = y.reshape(problem.table.length.shape[0], -1)
+    starts = problem.start_states(Y)
+    return segment_trajectories(problem.model, problem.integrator, starts, problem.params(lam))
 
 
 @eqx.filter_custom_jvp
 def _implicit_root(problem, lam, y):
-    return y
+    return y, _root_trajectories(problem, lam, y)
 
 
 @_implicit_root.def_jvp
 def _implicit_root_jvp(primals, tangents):
-    """The banded LU of J solves for the tangent; the solve is linear in the tangent and
-    built of transposable operations (gathers, triangular solves, static loops), so
+    """One forward pass at the root integrates every segment with the Jacobians of all its
+    step points (`flow_jacobians`). The end points' Jacobians give J (from the colour
+    seeds) and dr/d(design, lam); the banded LU of J solves for dy; all the points'
+    Jacobians then give the trajectories' tangents, so the outputs never differentiate
+    through the integrator. Everything is linear in the tangents and built of
+    transposable operations (gathers, einsums, triangular solves, static loops), so
     reverse mode transposes it."""
     problem, lam, y = primals
     d_problem, d_lam, _ = tangents
-    _, r_dot = eqx.filter_jvp(
-        lambda p, l: _natural_fn(y, (p, l)), (problem, lam), (d_problem, d_lam)
+    zero = jax.custom_derivatives.SymbolicZero
+    if all(t is None or isinstance(t, zero) for t in jax.tree_util.tree_leaves((d_problem, d_lam))):
+        traj = _root_trajectories(problem, lam, y)
+        return (y, traj), (jnp.zeros_like(y), jnp.zeros_like(traj))
+    md, S = problem.model, problem.table.length.shape[0]
+    dyn, static = eqx.partition((problem, lam), eqx.is_inexact_array)
+    d_dyn = jax.tree_util.tree_map(
+        lambda x, t: None if x is None else (jnp.zeros_like(x) if t is None else t),
+        dyn,
+        (d_problem, d_lam),
+        is_leaf=lambda x: x is None,
     )
-    if r_dot is None:
-        return y, jnp.zeros_like(y)
+    zero_dyn = jax.tree_util.tree_map(jnp.zeros_like, dyn)
+
+    def setup(a, d):
+        p, l = eqx.combine(d, static)
+        return p.start_states(a.reshape(S, -1)), p.params(l)
+
+    def residual(starts, ends, d):
+        p, l = eqx.combine(d, static)
+        return p.residual_from_states(starts, ends, l)
+
+    (starts, Q), setup_jvp = jax.linearize(setup, y, dyn)
+    traj, jac_y, jac_q = flow_jacobians(md, problem.integrator, starts, Q, save_all=True)
+    _, residual_jvp = jax.linearize(residual, starts, traj[:, -1], dyn)
+
+    def r_dot(da, dd):
+        d_starts, dQ = setup_jvp(da, dd)
+        d_ends = apply_flow_jacobians(md, starts, d_starts, dQ, jac_y[:, -1], jac_q[:, -1])
+        return residual_jvp(d_starts, d_ends, dd)
+
     plan = problem.topo.band
-    _, A = _banded.linearize(plan, lambda a: _natural_fn(a, (problem, lam)), y)
-    fac = lax.stop_gradient(_banded.factor(plan, A))
-    return y, -_banded.solve_factored(plan, fac, r_dot)
+    seeds = jnp.asarray(plan.colors, y.dtype)
+    JS = jax.vmap(lambda c: r_dot(c, zero_dyn), in_axes=1, out_axes=1)(seeds)
+    fac = lax.stop_gradient(_banded.factor(plan, _banded.band(plan, JS)))
+    dy = -_banded.solve_factored(plan, fac, r_dot(jnp.zeros_like(y), d_dyn))
+    d_starts, dQ = setup_jvp(dy, d_dyn)
+    d_traj = apply_flow_jacobians(md, starts, d_starts, dQ, jac_y, jac_q)
+    return (y, traj), (dy, d_traj)
 
 
 def _jacobians(problem, y, lam):
@@ -432,9 +474,9 @@ def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init)
     _, y_start = _start(quiet, init)
     direct, ok = _direct(quiet, y_start, options)
     one = jnp.ones(())
-    y = _attach_implicit_gradient(problem, one, direct.y, options.linear_solver)
+    y, traj = _attach_implicit_gradient(problem, one, direct.y, options.linear_solver)
     code = RESULTS.where(ok, RESULTS.successful, RESULTS.nonlinear_divergence)
-    return _outputs(problem, y, one, code, direct.k), ok
+    return _outputs(problem, y, one, code, direct.k, traj), ok
 
 
 @eqx.filter_jit
@@ -468,8 +510,8 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     else:
         y, lam_end, code, iterations = continuation(jnp.asarray(True))
 
-    y = _attach_implicit_gradient(problem, lam_end, y, options.linear_solver)
-    return _outputs(problem, y, lam_end, code, iterations)
+    y, traj = _attach_implicit_gradient(problem, lam_end, y, options.linear_solver)
+    return _outputs(problem, y, lam_end, code, iterations, traj)
 
 
 @eqx.filter_jit
@@ -481,12 +523,16 @@ def _limit_core(topo, integrator, options: SolverOptions, finger: Finger):
     return s.lam, _outputs(problem, s.y, s.lam, code, s.iterations)
 
 
-def _outputs(problem: Problem, y, lam, code, iterations) -> Solution:
+def _outputs(problem: Problem, y, lam, code, iterations, traj=None) -> Solution:
+    """The Solution at y; `traj`: the segments' integrated states, when already known.
+    (The residual is a diagnostic: it is evaluated without tangents.)"""
     topo, md, geo = problem.topo, problem.model, problem.geo
     S = problem.table.length.shape[0]
     Y = y.reshape(S, -1)
-    r = problem.residual(Y, lam)
-    s, traj = problem.trajectories(Y, lam)
+    s, traj = problem.trajectories(Y, lam, traj)
+    # The residual from the trajectories' ends (no second integration).
+    quiet = _nograd((problem, traj, lam))
+    r = quiet[0].residual_from_states(quiet[1][:, 0], quiet[1][:, -1], quiet[2])
 
     def beam(b):
         a, z = topo.first[b], topo.last[b] + 1
