@@ -97,17 +97,39 @@ def _argmax_strain(sol, finger):
 
 
 def _steps(case: Case):
-    """Finite-difference steps: 1e-3 relative for lengths (back_s increments relative to
-    the back_s they move), thicknesses and E, and 1e-3 rad for angles. The central
-    differences at h and h/2 are combined by Richardson extrapolation,
-    (4 D(h/2) - D(h)) / 3, whose truncation error is O(h^4). Measured on ref-A L2: plain
-    central differences at h = 1e-4 are off by 1.1e-5 (angle[0], falling as h^2:
-    truncation), and tip.dx / back_s[6], whose derivative is ~1e-7 of the largest in its
-    row, cannot get below ~2e-5 with steps of 1e-3 mm or less (solve noise ~1e-13 over 2h
-    grows as h shrinks); relative steps with extrapolation avoid both."""
+    """Finite-difference steps h: 1e-3 relative for lengths (back_s increments relative to
+    the back_s they move), thicknesses and E, and 1e-3 rad for angles. Measured on ref-A
+    L2: plain central differences at h = 1e-4 are off by 1.1e-5 (angle[0], falling as
+    h^2: truncation), and tip.dx / back_s[6], whose derivative is ~1e-7 of the largest in
+    its row, cannot get below ~2e-5 with steps of 1e-3 mm or less (solve noise ~1e-13 over
+    2h grows as h shrinks); relative steps with extrapolation (see `_fd`) avoid both."""
     scale = np.maximum(np.abs(case.x0), 1.0)
     scale[len(COMMON) :] = np.asarray(case.base.crossbeams.back_s)
     return 1e-3 * scale
+
+
+def _fd(f, x0, e, wide=True):
+    """Central differences D(k h) at k = 4, 2, 1, 1/2 (e = h times a unit vector), each
+    adjacent pair combined by Richardson extrapolation, (4 D(k h / 2) - D(k h)) / 3
+    (truncation O(h^4)). Per output, the estimate that differs least from its neighbours
+    is kept (Ridders' choice): it balances truncation, which grows with the step, against
+    solve noise, which grows as it shrinks. Measured on ref-A L2: tip.dx / angle[6]
+    (~1e-5, the smallest in its row) scatters by 1e-5 to 1e-4 relative with extrapolated
+    steps of 1e-3 rad or less, while at 4e-3 and 8e-3 rad the estimates agree to 1e-7;
+    angle[0] needs the small steps. Without `wide` (4 h would change the topology) only
+    h and h / 2. Returns (h times the estimate, where): the max-strain locations of the
+    solves at h and h / 2."""
+    levels = (4.0, 2.0, 1.0, 0.5) if wide else (1.0, 0.5)
+    pts = {k: (f(x0 + k * e), f(x0 - k * e)) for k in levels}
+    D = {k: (p[0][0] - p[1][0]) / (2 * k) for k, p in pts.items()}
+    R = np.stack([(4.0 * D[k / 2] - D[k]) / 3.0 for k in levels[:-1]])
+    if not wide:
+        return R[0], tuple(w for k in levels for _, w in pts[k])
+    gap = np.abs(np.diff(R, axis=0))  # |R1 - R0|, |R2 - R1|
+    err = np.stack([gap[0], np.maximum(gap[0], gap[1]), gap[1]])
+    pick = np.argmin(err, axis=0)
+    where = tuple(w for k in (1.0, 0.5) for _, w in pts[k])
+    return R[pick, np.arange(R.shape[1])], where
 
 
 def derivatives(case: Case):
@@ -131,11 +153,11 @@ def derivatives(case: Case):
             bool(design.design_valid(case.finger(case.x0 + s * e), case.topo)) for s in (1, -1)
         ]
         if all(valid):
-            pts = {s: case.eager(case.x0 + s * e) for s in (1.0, -1.0, 0.5, -0.5)}
-            d_h = (pts[1.0][0] - pts[-1.0][0]) / (2 * h)
-            d_half = (pts[0.5][0] - pts[-0.5][0]) / h
-            fd[:, i] = (4.0 * d_half - d_h) / 3.0
-            where = tuple(w for _, w in pts.values())
+            wide = all(
+                bool(design.design_valid(case.finger(case.x0 + s * e), case.topo)) for s in (4, -4)
+            )
+            fd[:, i], where = _fd(case.eager, case.x0, e, wide)
+            fd[:, i] /= h
         else:
             # An attachment that ties with another event (Finger-1's crossbeams 4 and 6
             # sit at the ends of the distributed load, s = 75 and 105) is a switch of the
