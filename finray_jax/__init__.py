@@ -19,6 +19,9 @@ from ._finger import Material as Material
 from ._finger import PointLoad as PointLoad
 from ._finger import Section as Section
 from ._finger import validate_finger as validate_finger
+from ._fold import Fold as Fold
+from ._fold import FoldOptions as FoldOptions
+from ._fold import fold_point as fold_point
 from ._fold import limit_load_factor as limit_load_factor
 from ._grasp import ContactResult as ContactResult
 from ._grasp import GraspSolution as GraspSolution

@@ -389,3 +389,13 @@ def test_cantilever_arguments():
         fr.solve_cantilever(-1.0, m, sec)
     with pytest.raises(ValueError, match="mode.*'auto'"):
         fr.solve_cantilever(100.0, m, sec, mode="auto")
+
+
+@pytest.mark.parametrize(
+    "field, value", [("slope_tol", 0.0), ("step_tol", -1.0), ("max_secant_steps", 0)]
+)
+def test_fold_options_name_the_bad_field(field, value):
+    from finray_jax import FoldOptions
+
+    with pytest.raises(ValueError, match=f"FoldOptions.{field} must be"):
+        FoldOptions(**{field: value})
