@@ -495,12 +495,17 @@ class Problem(eqx.Module):
             jm = jm.at[ix.cb_rows].add(ix.cb_sign[:, None] * moment[ix.cb_src])
         return jf, jm
 
+    def integrated(self, Y, lam):
+        """States at every segment's step points: (S, steps + 1, n_full)."""
+        starts = self.start_states(Y)
+        return segment_trajectories(self.model, self.integrator, starts, self.params(lam))
+
     def trajectories(self, Y, lam, traj=None):
         """Per-segment states along s: (S, steps + 2, n_full) and matching arc lengths.
-        `traj` (S, steps + 1, n_full), the integrated part, when it is already known."""
+        `traj`: `integrated(Y, lam)`, when it is already known."""
         starts = self.start_states(Y)
         if traj is None:
-            traj = segment_trajectories(self.model, self.integrator, starts, self.params(lam))
+            traj = self.integrated(Y, lam)
         traj = jnp.concatenate([starts[:, None], traj], axis=1)
         t = self.table
         n = traj.shape[1] - 2

@@ -518,8 +518,9 @@ def flow_jacobians(model, integrator, Y0, Q, need_y=True, need_q=True, save_all=
 def apply_flow_jacobians(model, Y0, dY0, dQ, jac_y, jac_q):
     """The tangent of `flow_jacobians`' output for start-state and parameter tangents
     dY0, dQ (either may be None): linear in them, so reverse mode transposes it."""
-    shape = (jac_y if jac_y is not None else jac_q).shape[:-1]
-    dout = jnp.zeros(shape, (jac_y if jac_y is not None else jac_q).dtype)
+    like = jac_y if jac_y is not None else jac_q
+    shape = like.shape[:-1]
+    dout = jnp.zeros(shape, like.dtype)
     if dY0 is not None:
         d = jax.vmap(model.tangent_coords)(Y0, dY0)
         dout = dout + jnp.einsum("s...j,sj->s...", jac_y, d)

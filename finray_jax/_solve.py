@@ -13,7 +13,7 @@ from . import _banded
 from ._assembly import Problem, build_topology, segment_table
 from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
 from ._geometry import arc_point, geometry
-from ._rod import Integrator, apply_flow_jacobians, flow_jacobians, segment_trajectories
+from ._rod import Integrator, apply_flow_jacobians, flow_jacobians
 from ._rotation import log_so3, planar_frame
 from ._solution import (
     RESULTS,
@@ -248,9 +248,7 @@ def _attach_implicit_gradient(problem, lam, y, linear_solver):
 
 
 def _root_trajectories(problem, lam, y):
-    Y = y.reshape(problem.table.length.shape[0], -1)
-    starts = problem.start_states(Y)
-    return segment_trajectories(problem.model, problem.integrator, starts, problem.params(lam))
+    return problem.integrated(y.reshape(problem.table.length.shape[0], -1), lam)
 
 
 @eqx.filter_custom_jvp
@@ -531,8 +529,8 @@ def _outputs(problem: Problem, y, lam, code, iterations, traj=None) -> Solution:
     Y = y.reshape(S, -1)
     s, traj = problem.trajectories(Y, lam, traj)
     # The residual from the trajectories' ends (no second integration).
-    quiet = _nograd((problem, traj, lam))
-    r = quiet[0].residual_from_states(quiet[1][:, 0], quiet[1][:, -1], quiet[2])
+    q_problem, q_traj, q_lam = _nograd((problem, traj, lam))
+    r = q_problem.residual_from_states(q_traj[:, 0], q_traj[:, -1], q_lam)
 
     def beam(b):
         a, z = topo.first[b], topo.last[b] + 1
