@@ -1,7 +1,9 @@
 """Solve-time benchmark of ref-A (issue: core performance targets).
 
 Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
-  compile time (first call, lowering + XLA compile, reported apart),
+  compile time (first call, lowering + XLA compile, reported apart) of the full traced
+  core (direct Newton, continuation fallback: what jit/vmap/grad compile) and of the
+  direct-Newton core alone (what an eager `solve_finger` compiles first),
   cold solve (from the undeformed guess), median of repeats,
   warm re-solve after a 1 % change of the back-beam thickness, starting from the previous
   solution (init=...), median of repeats.
@@ -9,10 +11,17 @@ Baselines timed in the same run for L1, so figures from noisy machines can be co
 the same solve through `diffrax.diffeqsolve` instead of the tableau stepper, and with
 the dense LU (`SolverOptions(linear_solver="dense")`) instead of the banded one.
 
+And what a new process pays for its first `solve_finger` (as in a CLI run, which keeps
+JAX's compilation cache on disk), with that cache empty and filled (child processes).
+
 Run:  taskset -c 0 .venv/bin/python benchmarks/solve.py [--quick]
 """
 
 import argparse
+import os
+import subprocess
+import sys
+import tempfile
 import time
 
 import equinox as eqx
@@ -29,6 +38,9 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
     t0 = time.perf_counter()
     sol = jax.block_until_ready(_solve._solve_core(topo, integrator, opts, finger, None))
     compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _solve._direct_core.lower(topo, integrator, opts, finger, None).compile()
+    direct_compile_s = time.perf_counter() - t0
     cold, n_cold = median_time(
         lambda: jax.block_until_ready(_solve._solve_core(topo, integrator, opts, finger, None)),
         repeats,
@@ -51,6 +63,7 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
         "iterations_warm": int(warm_sol.iterations),
         "tip_dx_mm": float(sol.tip.displacement[0]),
         "compile_s": compile_s,
+        "direct_compile_s": direct_compile_s,
         "cold_ms": 1e3 * cold,
         "warm_ms": 1e3 * warm,
         "repeats": [n_cold, n_warm],
@@ -58,6 +71,38 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
         "backend": integrator.backend,
         "linear_solver": opts.linear_solver,
     }
+
+
+NEW_PROCESS = """
+import sys, time
+t0 = time.perf_counter()
+import jax, finray_jax as fr
+from finray_jax import cli
+cli.enable_compilation_cache()  # as every `finray` command but validate does
+t1 = time.perf_counter()
+sol = fr.solve_finger(fr.ref_finger_a("L1"), mode=sys.argv[1])
+jax.block_until_ready(sol.unknowns)
+print(t1 - t0, time.perf_counter() - t1, sol.status)
+"""
+
+
+def bench_new_process(mode):
+    """What a new process (a CLI run) pays for its first `solve_finger`: with an empty
+    compilation cache (compiles, then stores) and with the cache filled by that run."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, FINRAY_NO_CACHE="0", FINRAY_CACHE_DIR=cache)
+        out = {}
+        for label in ("empty_cache", "filled_cache"):
+            run = subprocess.run(
+                [sys.executable, "-c", NEW_PROCESS, mode],
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            imp, first, status = run.stdout.split()
+            out[label] = {"import_s": float(imp), "first_solve_s": float(first), "status": status}
+    return {"mode": mode, **out}
 
 
 def main():
@@ -72,11 +117,23 @@ def main():
             row = bench_case(case, mode, repeats=5 if args.quick else 15)
             rows.append(row)
             print(
-                f"{case} {mode:8s} {row['status']:10s} compile {row['compile_s']:6.1f} s  "
+                f"{case} {mode:8s} {row['status']:10s} compile {row['compile_s']:6.1f} s "
+                f"(direct {row['direct_compile_s']:4.1f} s)  "
                 f"cold {row['cold_ms']:8.2f} ms ({row['iterations_cold']} it)  "
                 f"warm {row['warm_ms']:8.2f} ms ({row['iterations_warm']} it)",
                 flush=True,
             )
+    fresh = []
+    for mode in ("planar", "spatial"):
+        row = bench_new_process(mode)
+        fresh.append(row)
+        print(
+            f"new process, first solve_finger L1 {mode}: "
+            f"{row['empty_cache']['first_solve_s']:.1f} s with an empty compilation cache, "
+            f"{row['filled_cache']['first_solve_s']:.1f} s with it filled "
+            f"(import {row['filled_cache']['import_s']:.1f} s)",
+            flush=True,
+        )
     base = bench_case("L1", "planar", fr.Integrator(backend="diffeqsolve"), repeats=5)
     print(
         f"baseline diffeqsolve L1 planar: compile {base['compile_s']:.1f} s  cold "
@@ -96,6 +153,7 @@ def main():
             "pinned_cores": cores,
             "machine": machine(),
             "rows": rows,
+            "new_process": fresh,
             "baseline_diffeqsolve": base,
             "baseline_dense_lu": dense,
         },

@@ -5,6 +5,7 @@ code paths (counts, boundary-condition kinds, the beam a load acts on) is static
 """
 
 import equinox as eqx
+import jax
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -223,12 +224,17 @@ def beam_lengths(finger: Finger) -> tuple[float, float]:
     return tuple(float(x) for x in _main_lengths(finger.tip, pairs))
 
 
-def crossbeam_lengths(finger: Finger) -> np.ndarray:
-    return np.asarray(_geometry(finger).length[2:])
+_all_lengths = jax.jit(lambda finger: geometry(finger).length)
 
 
 def validate_finger(finger: Finger) -> None:
     """Check a finger eagerly; raise FingerError naming the field and value."""
+    cb = finger.crossbeams
+    shapes = {k: np.shape(getattr(cb, k)) for k in ("front_s", "back_s", "thickness", "depth")}
+    if len(set(shapes.values())) != 1 or len(shapes["front_s"]) != 1:
+        raise FingerError(f"crossbeam arrays must be 1-D of equal length, got shapes {shapes}")
+    lengths = jax.device_get(_all_lengths(finger)).tolist()  # front, back, crossbeams
+    finger = jax.device_get(finger)  # the checks below run on numpy values
     m = finger.material
     _positive("material.E", m.E)
     nu = _finite("material.nu", m.nu)
@@ -257,7 +263,7 @@ def validate_finger(finger: Finger) -> None:
                 f"{name} = {kappa} is too large for a chord of {chord:.6g} mm: "
                 f"|curvature| * chord / 2 must stay below 0.99 (at most a near half circle)"
             )
-    lf, lb = beam_lengths(finger)
+    lf, lb = lengths[:2]
     if lf <= 0:
         raise FingerError(f"front beam has zero length: front_base equals tip {finger.tip}")
     if lb <= 0:
@@ -268,16 +274,19 @@ def validate_finger(finger: Finger) -> None:
         raise FingerError(f"torsion must be one of {TORSION_KINDS}, got {finger.torsion!r}")
 
     cb = finger.crossbeams
-    shapes = {k: np.shape(getattr(cb, k)) for k in ("front_s", "back_s", "thickness", "depth")}
-    if len(set(shapes.values())) != 1 or len(shapes["front_s"]) != 1:
-        raise FingerError(f"crossbeam arrays must be 1-D of equal length, got shapes {shapes}")
     fs = _num(cb.front_s)
     bs = _num(cb.back_s)
-    for i in range(len(fs)):
-        _finite(f"crossbeams[{i}].front_s", fs[i])
-        _finite(f"crossbeams[{i}].back_s", bs[i])
-        _positive(f"crossbeams[{i}].thickness", _num(cb.thickness)[i])
-        _positive(f"crossbeams[{i}].depth", _num(cb.depth)[i])
+    for name, check in (
+        ("front_s", _finite),
+        ("back_s", _finite),
+        ("thickness", _positive),
+        ("depth", _positive),
+    ):
+        v = _num(getattr(cb, name))
+        bad = ~np.isfinite(v) | ((v <= 0) if check is _positive else False)
+        if np.any(bad):  # name the first bad crossbeam
+            i = int(np.argmax(bad))
+            check(f"crossbeams[{i}].{name}", v[i])
     for i, (a, b) in enumerate(zip(fs, bs)):
         if not 0.0 < a < lf:
             raise FingerError(
@@ -300,7 +309,7 @@ def validate_finger(finger: Finger) -> None:
                 f"crossbeams must be listed base to tip: crossbeams[{i + 1}].front_s = "
                 f"{fs[i + 1]} < crossbeams[{i}].front_s = {fs[i]}"
             )
-    if len(fs) and np.any(crossbeam_lengths(finger) <= 1e-9):
+    if len(fs) and min(lengths[2:]) <= 1e-9:
         raise FingerError("a crossbeam has zero length (its two ends coincide)")
 
     ad = finger.adaptor
@@ -343,7 +352,6 @@ def validate_finger(finger: Finger) -> None:
             )
     _validate_contact(finger)
 
-    lengths = [lf, lb, *crossbeam_lengths(finger).tolist()]
     for j, load in enumerate(finger.loads):
         where = f"loads[{j}]"
         if not isinstance(load.beam, int) or not 0 <= load.beam < finger.n_beams:

@@ -1,6 +1,7 @@
 """Newton shooting with load continuation, fold detection and the limit load."""
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -178,7 +179,8 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
     from the LU factors), which tells whether the root lies on the branch of the start.
     Converged when the step and the residual are below atol + rtol |y| (scaled), or when
     Newton is in its quadratic regime and the predicted next step, step_k^3 / step_(k-1)^2,
-    is below that: this saves the iteration that would only confirm convergence. (The
+    is below a tenth of that: this saves the iteration that would only confirm convergence
+    (a 1 % design change is then re-solved in 2 iterations instead of 3). (The
     residual reported in the Solution is always evaluated at the returned point.)
     With contact (objects or a support) every step is backtracked until the residual
     decreases.
@@ -198,7 +200,7 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True):
         conv = (step < 1.0) & (jnp.max(jnp.abs(r)) < options.atol)
         contracting = (st.k > 0) & (step < 1e-2 * st.step)
         predicted = step**3 / jnp.maximum(st.step, 1e-300) ** 2
-        conv = conv | (contracting & (predicted < 1e-2) & (jnp.max(jnp.abs(dy)) < 1e-4))
+        conv = conv | (contracting & (predicted < 0.1) & (jnp.max(jnp.abs(dy)) < 1e-4))
         k = st.k + 1
         return _Newton(
             y=y,
@@ -463,7 +465,13 @@ def _start(problem, init):
     return y_und, (y_und if init is None else lax.stop_gradient(init))
 
 
-@eqx.filter_jit
+# The cores are jitted with jax.jit, their first three arguments (topology, integrator,
+# options) static: its C++ dispatch flattens the finger and builds the Solution several
+# times faster than eqx.filter_jit (~0.1 ms against ~0.4 ms per call, measured).
+_core_jit = functools.partial(jax.jit, static_argnums=(0, 1, 2))
+
+
+@_core_jit
 def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     """Only the direct Newton solve (compiles in about half the time of `_solve_core`);
     `solve_finger` falls back to the continuation when it is not accepted."""
@@ -477,7 +485,7 @@ def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init)
     return _outputs(problem, y, one, code, direct.k, traj), ok
 
 
-@eqx.filter_jit
+@_core_jit
 def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     """Direct Newton, else arc-length continuation, all traced (for jit, vmap, grad)."""
     problem = _make_problem(topo, integrator, finger)
@@ -512,7 +520,7 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     return _outputs(problem, y, lam_end, code, iterations, traj)
 
 
-@eqx.filter_jit
+@_core_jit
 def _limit_core(topo, integrator, options: SolverOptions, finger: Finger):
     problem = _nograd(_make_problem(topo, integrator, finger))
     y_und = problem.undeformed().reshape(-1)
