@@ -4,6 +4,7 @@ Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   compile time (first call, lowering + XLA compile, reported apart) of the full traced
   core (direct Newton, continuation fallback: what jit/vmap/grad compile) and of the
   direct-Newton core alone (what an eager `solve_finger` compiles first),
+  and for L1 the time of a `solve_finger` call from Python (finger checks included),
   cold solve (from the undeformed guess), median of repeats,
   warm re-solve after a 1 % change of the back-beam thickness, starting from the previous
   solution (init=...), median of repeats.
@@ -73,6 +74,17 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
     }
 
 
+def bench_eager(case, mode, repeats=30):
+    """A user's call: `solve_finger` from Python (checks the finger, then runs the
+    compiled direct solve), cold, after its compile."""
+    finger = fr.ref_finger_a(case)
+    topo = fr.topology_of(finger, mode)
+    call = lambda: jax.block_until_ready(fr.solve_finger(finger, topology=topo).unknowns)
+    call()
+    t, n = median_time(call, repeats)
+    return {"case": case, "mode": mode, "solve_finger_ms": 1e3 * t, "repeats": n}
+
+
 NEW_PROCESS = """
 import sys, time
 t0 = time.perf_counter()
@@ -123,6 +135,11 @@ def main():
                 f"warm {row['warm_ms']:8.2f} ms ({row['iterations_warm']} it)",
                 flush=True,
             )
+    eager = []
+    for mode in ("planar", "spatial"):
+        row = bench_eager("L1", mode)
+        eager.append(row)
+        print(f"solve_finger L1 {mode} from Python: {row['solve_finger_ms']:.2f} ms", flush=True)
     fresh = []
     for mode in ("planar", "spatial"):
         row = bench_new_process(mode)
@@ -153,6 +170,7 @@ def main():
             "pinned_cores": cores,
             "machine": machine(),
             "rows": rows,
+            "solve_finger": eager,
             "new_process": fresh,
             "baseline_diffeqsolve": base,
             "baseline_dense_lu": dense,
