@@ -492,11 +492,15 @@ def segment_flow(model, integrator, Y0, Q):
     return jax.vmap(lambda y, q: _integrate(model, integrator, y, q, False))(Y0, Q)
 
 
-def flow_jacobians(model, integrator, Y0, Q, need_y=True, need_q=True, save_all=False):
+def flow_jacobians(
+    model, integrator, Y0, Q, need_y=True, need_q=True, save_all=False, q_columns=None
+):
     """Integrate every segment with the Jacobians of its output (the end state, or with
     `save_all` the states at every step point) with respect to the start state's own
     tangent coordinates (`tangent_coords`) and to the parameters: one forward pass with
-    those directions. Returns (out, jac_y, jac_q); a Jacobian not asked for is None."""
+    those directions. q_columns: the parameter columns to differentiate in (static; None:
+    all of them). Returns (out, jac_y, jac_q); a Jacobian not asked for is None."""
+    cols = slice(None) if q_columns is None else np.asarray(q_columns)
 
     def one(y, q):
         # Differentiate along the start state's own tangent directions only (a frame
@@ -504,20 +508,21 @@ def flow_jacobians(model, integrator, Y0, Q, need_y=True, need_q=True, save_all=
         E = model.tangent_basis(y)
 
         def twice(d, b):
-            o = _integrate(model, integrator, y + E @ d, b, save_all)
+            o = _integrate(model, integrator, y + E @ d, q.at[cols].set(b), save_all)
             return o, o
 
         d0 = jnp.zeros(E.shape[1], y.dtype)
-        return jax.jacfwd(twice, argnums=argnums, has_aux=True)(d0, q)
+        return jax.jacfwd(twice, argnums=argnums, has_aux=True)(d0, q[cols])
 
     argnums = tuple(i for i, need in ((0, need_y), (1, need_q)) if need)
     jacs, out = jax.vmap(one)(Y0, Q)
     return out, (jacs[0] if need_y else None), (jacs[-1] if need_q else None)
 
 
-def apply_flow_jacobians(model, Y0, dY0, dQ, jac_y, jac_q):
+def apply_flow_jacobians(model, Y0, dY0, dQ, jac_y, jac_q, q_columns=None):
     """The tangent of `flow_jacobians`' output for start-state and parameter tangents
-    dY0, dQ (either may be None): linear in them, so reverse mode transposes it."""
+    dY0, dQ (either may be None; dQ's columns outside `q_columns`, those `jac_q` was
+    taken in, must be zero): linear in them, so reverse mode transposes it."""
     like = jac_y if jac_y is not None else jac_q
     shape = like.shape[:-1]
     dout = jnp.zeros(shape, like.dtype)
@@ -529,6 +534,7 @@ def apply_flow_jacobians(model, Y0, dY0, dQ, jac_y, jac_q):
             shift = dY0[:, pos].reshape((shape[0],) + (1,) * (len(shape) - 2) + (-1,))
             dout = dout.at[..., pos].add(shift)
     if dQ is not None:
+        dQ = dQ if q_columns is None else dQ[:, np.asarray(q_columns)]
         dout = dout + jnp.einsum("s...j,sj->s...", jac_q, dQ)
     return dout
 

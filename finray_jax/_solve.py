@@ -7,6 +7,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optimistix as optx
 from jax import lax
 
@@ -292,13 +293,20 @@ def _implicit_root_jvp(primals, tangents):
         return p.residual_from_states(starts, ends, l)
 
     (starts, Q), setup_jvp = jax.linearize(setup, y, dyn)
-    traj, jac_y, jac_q = flow_jacobians(md, problem.integrator, starts, Q, save_all=True)
+    cols = _live_param_columns(problem, d_problem, d_lam)
+    traj, jac_y, jac_q = flow_jacobians(
+        md, problem.integrator, starts, Q, need_q=cols.size > 0, save_all=True, q_columns=cols
+    )
     _, residual_jvp = jax.linearize(residual, starts, traj[:, -1], dyn)
+
+    def flow_dot(d_starts, dQ, at=slice(None)):
+        jq = None if jac_q is None else jac_q[:, at]
+        dQ = None if jac_q is None else dQ
+        return apply_flow_jacobians(md, starts, d_starts, dQ, jac_y[:, at], jq, cols)
 
     def r_dot(da, dd):
         d_starts, dQ = setup_jvp(da, dd)
-        d_ends = apply_flow_jacobians(md, starts, d_starts, dQ, jac_y[:, -1], jac_q[:, -1])
-        return residual_jvp(d_starts, d_ends, dd)
+        return residual_jvp(d_starts, flow_dot(d_starts, dQ, -1), dd)
 
     plan = problem.topo.band
     seeds = jnp.asarray(plan.colors, y.dtype)
@@ -306,8 +314,33 @@ def _implicit_root_jvp(primals, tangents):
     fac = lax.stop_gradient(_banded.factor(plan, _banded.band(plan, JS)))
     dy = -_banded.solve_factored(plan, fac, r_dot(jnp.zeros_like(y), d_dyn))
     d_starts, dQ = setup_jvp(dy, d_dyn)
-    d_traj = apply_flow_jacobians(md, starts, d_starts, dQ, jac_y, jac_q)
-    return (y, traj), (dy, d_traj)
+    return (y, traj), (dy, flow_dot(d_starts, dQ))
+
+
+def _live_param_columns(problem: Problem, d_problem, d_lam) -> np.ndarray:
+    """The columns of `Problem.params` that the tangents can change (static): those fed by
+    a segment-table field that has a tangent (the forces also by a load-factor tangent).
+    Found by packing a table of 0/1 flags; the flow is differentiated in these only (a
+    design gradient leaves e.g. the loads and precurvatures alone)."""
+    zero = jax.custom_derivatives.SymbolicZero
+    is_none = lambda x: x is None
+
+    def live(t):
+        leaves = jax.tree_util.tree_leaves(t, is_leaf=is_none)
+        return any(not (x is None or isinstance(x, zero)) for x in leaves)
+
+    table = problem.table
+    d_table = getattr(d_problem, "table", None)
+    flags = {}
+    for f in dataclasses.fields(table):
+        flags[f.name] = live(getattr(d_table, f.name, None))
+    flags["force"] = flags["force"] or live(d_lam)
+    mask = type(table)(
+        **{k: np.full(np.shape(getattr(table, k)), float(on)) for k, on in flags.items()}
+    )
+    with jax.ensure_compile_time_eval():
+        packed = np.asarray(problem.model.pack(mask))
+    return np.flatnonzero(np.any(packed != 0.0, axis=0))
 
 
 def _jacobians(problem, y, lam):
