@@ -388,6 +388,44 @@ def test_fold_gradient_matches_finite_differences(fold_derivs):
 
 
 # --------------------------------------------------------------------------------------
+# A load gradient (the distributed force's parameter columns carry a tangent)
+# --------------------------------------------------------------------------------------
+
+
+def test_load_and_modulus_gradient_with_a_distributed_load():
+    """The implicit rule differentiates the segments only in the parameter columns that
+    carry a tangent; a design gradient leaves the distributed force out, a load gradient
+    needs it. ref-A L3 (1 N spread over an arc), x = (E, factor on the load): tip dx and
+    the front base reaction fx by jacfwd and grad, against finite differences and against
+    the closed form: the equilibrium depends on E and the load only through lam F / E, so
+    E du/dE = -lam du/dlam for the tip displacement u."""
+    base = fr.ref_finger_a("L3")
+    topo = fr.topology_of(base, "planar")
+
+    def outputs(x):
+        f = eqx.tree_at(lambda f: f.material.E, base, x[0]).scale_loads(x[1])
+        sol = fr.solve_finger(f, topology=topo)
+        return jnp.stack([sol.tip.displacement[0], sol.reactions_front.force[0]])
+
+    x0 = np.array([float(base.material.E), 1.0])
+    jac, grad = jax.jit(lambda x: (jax.jacfwd(outputs)(x), jax.grad(lambda x: outputs(x)[0])(x)))(
+        jnp.asarray(x0)
+    )
+    jac, grad = np.asarray(jac), np.asarray(grad)
+    np.testing.assert_allclose(grad, jac[0], rtol=1e-10)
+    # closed form for the tip displacement
+    assert x0[0] * jac[0, 0] == pytest.approx(-x0[1] * jac[0, 1], rel=1e-9)
+    assert abs(jac[0, 1]) > 1.0  # the tip moves by millimetres per unit load factor
+    f = lambda x: (np.asarray(outputs(jnp.asarray(x))), None)
+    for i, h in enumerate((1e-3 * x0[0], 1e-3)):
+        e = np.zeros(2)
+        e[i] = h
+        fd, _ = _fd(f, x0, e)
+        err = _rel(jac[:, i], fd / h)
+        assert np.all(err < 1e-5), (i, jac[:, i], fd / h)
+
+
+# --------------------------------------------------------------------------------------
 # New design values never recompile
 # --------------------------------------------------------------------------------------
 
