@@ -500,19 +500,23 @@ def flow_jacobians(
     tangent coordinates (`tangent_coords`) and to the parameters: one forward pass with
     those directions. q_columns: the parameter columns to differentiate in (static; None:
     all of them). Returns (out, jac_y, jac_q); a Jacobian not asked for is None."""
-    cols = slice(None) if q_columns is None else np.asarray(q_columns)
 
     def one(y, q):
         # Differentiate along the start state's own tangent directions only (a frame
         # turns in 3 ways, not 9; translations need no integration without contact).
         E = model.tangent_basis(y)
+        if q_columns is None:
+            b0, full = q, lambda b: b
+        else:
+            cols = np.asarray(q_columns)
+            b0, full = q[cols], lambda b: q.at[cols].set(b)
 
         def twice(d, b):
-            o = _integrate(model, integrator, y + E @ d, q.at[cols].set(b), save_all)
+            o = _integrate(model, integrator, y + E @ d, full(b), save_all)
             return o, o
 
         d0 = jnp.zeros(E.shape[1], y.dtype)
-        return jax.jacfwd(twice, argnums=argnums, has_aux=True)(d0, q[cols])
+        return jax.jacfwd(twice, argnums=argnums, has_aux=True)(d0, b0)
 
     argnums = tuple(i for i, need in ((0, need_y), (1, need_q)) if need)
     jacs, out = jax.vmap(one)(Y0, Q)

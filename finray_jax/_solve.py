@@ -270,8 +270,7 @@ def _implicit_root_jvp(primals, tangents):
     reverse mode transposes it."""
     problem, lam, y = primals
     d_problem, d_lam, _ = tangents
-    zero = jax.custom_derivatives.SymbolicZero
-    if all(t is None or isinstance(t, zero) for t in jax.tree_util.tree_leaves((d_problem, d_lam))):
+    if not _has_tangent((d_problem, d_lam)):
         traj = _root_trajectories(problem, lam, y)
         return (y, traj), (jnp.zeros_like(y), jnp.zeros_like(traj))
     md, S = problem.model, problem.table.length.shape[0]
@@ -317,24 +316,24 @@ def _implicit_root_jvp(primals, tangents):
     return (y, traj), (dy, flow_dot(d_starts, dQ))
 
 
+def _has_tangent(tangents) -> bool:
+    """Whether a tree of custom-JVP tangents holds any that is not None or a symbolic zero."""
+    zero = jax.custom_derivatives.SymbolicZero
+    leaves = jax.tree_util.tree_leaves(tangents, is_leaf=lambda x: x is None)
+    return any(not (t is None or isinstance(t, zero)) for t in leaves)
+
+
 def _live_param_columns(problem: Problem, d_problem, d_lam) -> np.ndarray:
     """The columns of `Problem.params` that the tangents can change (static): those fed by
     a segment-table field that has a tangent (the forces also by a load-factor tangent).
     Found by packing a table of 0/1 flags; the flow is differentiated in these only (a
     design gradient leaves e.g. the loads and precurvatures alone)."""
-    zero = jax.custom_derivatives.SymbolicZero
-    is_none = lambda x: x is None
-
-    def live(t):
-        leaves = jax.tree_util.tree_leaves(t, is_leaf=is_none)
-        return any(not (x is None or isinstance(x, zero)) for x in leaves)
-
     table = problem.table
     d_table = getattr(d_problem, "table", None)
-    flags = {}
-    for f in dataclasses.fields(table):
-        flags[f.name] = live(getattr(d_table, f.name, None))
-    flags["force"] = flags["force"] or live(d_lam)
+    flags = {
+        f.name: _has_tangent(getattr(d_table, f.name, None)) for f in dataclasses.fields(table)
+    }
+    flags["force"] = flags["force"] or _has_tangent(d_lam)
     mask = type(table)(
         **{k: np.full(np.shape(getattr(table, k)), float(on)) for k, on in flags.items()}
     )

@@ -300,16 +300,14 @@ def test_design_values_do_not_recompile(sol_l1, monkeypatch):
     # 1. _make_problem runs once per trace of the jitted core _solve_core: wrap it with
     #    eqx.debug.assert_max_traces and count (the jit cache ignores the wrapper);
     # 2. the size of the jax.jit caches of _direct_core (the plain Newton solve) and
-    #    _solve_core (with load continuation), or of those behind an eqx.filter_jit.
+    #    _solve_core (with load continuation).
     checks = 0
     if hasattr(_solve, "_make_problem"):
         counted = eqx.debug.assert_max_traces(_solve._make_problem, max_traces=None)
         monkeypatch.setattr(_solve, "_make_problem", counted)
         checks += 1
     caches = [
-        getattr(core, "_cache_size", None)
-        or getattr(getattr(core, "_cached", None), "_cache_size", None)
-        for core in (_solve._direct_core, _solve._solve_core)
+        getattr(core, "_cache_size", None) for core in (_solve._direct_core, _solve._solve_core)
     ]
     caches = [c for c in caches if c is not None]
     size0 = [c() for c in caches]
