@@ -34,11 +34,11 @@ def _solve(model, integrator, Q, tip_force, tip_moment):
     """Clamp at the origin along +z; end wrench given in the world frame."""
     segments = Q.shape[0]
     if isinstance(model, PlanarRod):
-        y0 = jnp.zeros(6)
+        y0 = model.full_from_unknown(jnp.zeros(6), 0.0)
         unknown = jnp.zeros(3)  # (nx, nz, my) at the base
 
         def start(u):
-            return y0.at[3:].set(u)
+            return y0.at[3:6].set(u)
 
         def tip_rows(y):
             return jnp.stack([y[3] - tip_force[0], y[4] - tip_force[2], y[5] - tip_moment[1]])

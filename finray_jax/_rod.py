@@ -17,6 +17,7 @@ the end (no integration needed): 4 of 6 directions planar, 9 of 18 in 3-D.
 """
 
 import functools
+import math
 import numbers
 from typing import ClassVar
 
@@ -39,7 +40,9 @@ class Integrator(eqx.Module):
     backend: "tableau" (default) takes the solver's Butcher tableau and steps it in a
         lean `lax.scan`, which compiles and runs several times faster for these tiny
         states; "step" calls the solver's own `step` in a scan; "diffeqsolve" calls
-        `diffrax.diffeqsolve` with constant steps. All three give the same answer.
+        `diffrax.diffeqsolve` with constant steps. The first two give the same answer;
+        diffeqsolve cannot re-project the planar (cos, sin) pair after each step
+        (`after_step`), so its planar answer differs by the integration error.
     """
 
     solver: dfx.AbstractSolver = dfx.Tsit5(scan_kind="lax")
@@ -128,6 +131,11 @@ class AbstractRodModel(eqx.Module):
         f, l = contact_load(self.contact, self.split(q)[1], p[::2], t[::2], tau)
         return force + jnp.stack([f[0], 0.0, f[1]]), moment + jnp.stack([0.0, l, 0.0])
 
+    @staticmethod
+    def after_step(y0, y1):
+        """The state after a Runge-Kutta step from y0 to y1 (a model may re-project it)."""
+        return y1
+
     # --- directions of a start state that the segment flow must be differentiated in ---
     @property
     def translation_free(self) -> bool:
@@ -146,7 +154,17 @@ class AbstractRodModel(eqx.Module):
 
 
 class PlanarRod(AbstractRodModel):
-    """Planar Cosserat rod in the x-z plane: state (x, z, theta, nx, nz, my).
+    """Planar Cosserat rod in the x-z plane: unknowns (x, z, theta, nx, nz, my); the
+    integrated state appends (cos theta, sin theta).
+
+    Carrying the frame's two numbers, as the 3-D model carries R, keeps trigonometry out of
+    the rhs (cos' = -sin theta', sin' = cos theta'): the Runge-Kutta stages need only
+    products (a sine and a cosine per stage were half the cost of a planar step on the
+    CPU). After each step (`after_step`) the pair is reset to the cosine and sine of the
+    integrated theta, by turning the previous step's pair through the step's angle (a
+    short polynomial, `_turn`): it never drifts from theta or off the unit circle, and the
+    tip of ref-A is as accurate as with trigonometric stages (relative error at 10 steps
+    per segment 5e-6 on L2 and 2.5e-7 on L3, against 6.3e-6 and 8.5e-7).
 
     Parameters q = (length, rigid, fx, fz, u2*, then (kGA, EA, EI) per stiffness sample),
     where EI is the in-plane bending stiffness (about d2 = y) and (fx, fz) the distributed
@@ -155,7 +173,7 @@ class PlanarRod(AbstractRodModel):
 
     name: ClassVar[str] = "planar"
     n_unknown: ClassVar[int] = 6
-    n_full: ClassVar[int] = 6
+    n_full: ClassVar[int] = 8
     n_stiff: ClassVar[int] = 3
     n_head: ClassVar[int] = 5
     rotation_slice: ClassVar[slice] = slice(2, 3)
@@ -176,10 +194,15 @@ class PlanarRod(AbstractRodModel):
         return jnp.concatenate([head, stiff, table.contact], axis=-1)
 
     def rhs(self, tau, y, q):
-        x, z, th, nx, nz, my = y
+        x, z, th, nx, nz, my, c, s = y
+        if self.contact is not None:
+            # A stage's (cos, sin) is a linear combination, not a unit vector: far from a
+            # root a stiff contact penalty can feed it back until it overflows. Unit length
+            # keeps every state finite (it costs ~10 % of a step, so only with contact).
+            unit = lax.rsqrt(c * c + s * s)
+            c, s = c * unit, s * unit
         u2s = q[4]
         kga, ea, ei = _stiffness_at(self, self.split(q)[0], tau)
-        c, s = jnp.cos(th), jnp.sin(th)
         n1 = c * nx - s * nz
         n3 = s * nx + c * nz
         v1 = n1 / kga
@@ -197,32 +220,48 @@ class PlanarRod(AbstractRodModel):
             jnp.zeros(3),
         )
         dmy = -(dz * nx - dx * nz) - l[1]
-        return jnp.stack([dx, dz, dth, -f[0], -f[2], dmy])
+        return jnp.stack([dx, dz, dth, -f[0], -f[2], dmy, -s * dth, c * dth])
 
     @staticmethod
     def rigid_transport(y, q):
-        x, z, th, nx, nz, my = y
+        x, z, th, nx, nz, my, tz, tx = y
         r, fx, fz = q[1], q[2], q[3]
-        tx, tz = jnp.sin(th), jnp.cos(th)
         # n(r) = n0 - f r;  m(r) = m0 - t x (n0 r - f r^2 / 2)  (y-component)
         ax = nx * r - 0.5 * fx * r * r
         az = nz * r - 0.5 * fz * r * r
         return jnp.stack(
-            [x + tx * r, z + tz * r, th, nx - fx * r, nz - fz * r, my - (tz * ax - tx * az)]
+            [
+                x + tx * r,
+                z + tz * r,
+                th,
+                nx - fx * r,
+                nz - fz * r,
+                my - (tz * ax - tx * az),
+                tz,
+                tx,
+            ]
         )
 
+    @staticmethod
+    def after_step(y0, y1):
+        """(cos, sin) of the step's end turned from its start's: exactly theta's again."""
+        c, s = _turn(y0[jnp.array([2, 6, 7])], y1[2])
+        return jnp.concatenate([y1[:6], jnp.stack([c, s])])
+
     def tangent_basis(self, y):
-        E = jnp.eye(6, dtype=y.dtype)
+        """A turn d(theta) also moves (cos, sin) by (-sin, cos) d(theta)."""
+        E = jnp.eye(8, 6, dtype=y.dtype)
+        E = E.at[6, 2].set(-y[7]).at[7, 2].set(y[6])
         return E[:, 2:] if self.translation_free else E
 
     def tangent_coords(self, y, dy):
-        return dy[2:] if self.translation_free else dy
+        return dy[2:6] if self.translation_free else dy[:6]
 
     # --- accessors on full states ---
     @staticmethod
     def full_from_unknown(y, theta_ref):
         del theta_ref
-        return y
+        return jnp.concatenate([y, jnp.stack([jnp.cos(y[2]), jnp.sin(y[2])])])
 
     @staticmethod
     def position(y):
@@ -397,6 +436,32 @@ class SpatialRod(AbstractRodModel):
         return jnp.concatenate([point, jnp.stack([z, z, z, z, z, z, z, z, z])])
 
 
+# Taylor coefficients of cos and sin in d^2, to d^14 and d^15: below 5e-14 relative for
+# |d| <= 1 rad, and far below round-off for the < 0.1 rad a step turns at a converged state.
+_COS = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(8))
+_SIN = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(8))
+
+
+def _horner(coefficients, u):
+    acc = coefficients[-1]
+    for c in coefficients[-2::-1]:
+        acc = c + u * acc
+    return acc
+
+
+def _turn(anchor, theta):
+    """(cos theta, sin theta) from anchor = (theta0, cos theta0, sin theta0), theta close
+    to theta0: the angle-addition formulas with polynomial cos and sin of the difference.
+
+    A difference beyond 1 rad (a frame turning by more than a radian within one step, which
+    only a wild Newton iterate does) is clipped: its cos and sin stay bounded and finite."""
+    th0, c0, s0 = anchor
+    d = jnp.clip(theta - th0, -1.0, 1.0)
+    u = d * d
+    cd, sd = _horner(_COS, u), d * _horner(_SIN, u)
+    return c0 * cd - s0 * sd, s0 * cd + c0 * sd
+
+
 def _dot(A, x):
     """A @ x for a 3x3 A, as elementwise products and sums."""
     return A[:, 0] * x[0] + A[:, 1] * x[1] + A[:, 2] * x[2]
@@ -456,7 +521,7 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
         f = lambda t, yy: flex * model.rhs(t, yy, q)
 
         def rk(yy, i):
-            y1 = _rk_step(solver.tableau, f, i * h, yy, h)
+            y1 = model.after_step(yy, _rk_step(solver.tableau, f, i * h, yy, h))
             return y1, (y1 if save_all else None)
 
         y_end, ys = lax.scan(rk, y, jnp.arange(n, dtype=q.dtype))
@@ -469,6 +534,7 @@ def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
         yy, st = carry
         t0 = i * h
         y1, _, _, st, _ = solver.step(term, t0, t0 + h, yy, q, st, made_jump=False)
+        y1 = model.after_step(yy, y1)
         return (y1, st), (y1 if save_all else None)
 
     (y_end, _), ys = lax.scan(body, (y, state), jnp.arange(n, dtype=q.dtype))
