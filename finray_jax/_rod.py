@@ -247,7 +247,7 @@ class PlanarRod(AbstractRodModel):
     @staticmethod
     def after_step(y0, y1):
         """(cos, sin) of the step's end turned from its start's: exactly theta's again."""
-        c, s = _turn(y0[jnp.array([2, 6, 7])], y1[2])
+        c, s = _turn((y0[2], y0[6], y0[7]), y1[2])
         return jnp.concatenate([y1[:6], jnp.stack([c, s])])
 
     def tangent_basis(self, y):

@@ -187,11 +187,11 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
     accepted and its factors give the next step. The residual that decides is the one the
     Jacobian pass computes anyway, so a run of full steps pays no extra residual. Far from
     the root this keeps Newton from wandering: ref-A's L2 (1.5 N, three quarters of the
-    limit load) is solved directly in 16 linearisations planar and 17 in 3-D, where plain
-    Newton wandered for 16 planar (and did not converge in 3-D: 55 continuation
-    iterations). With contact (objects or a support) every step is instead backtracked on
-    the spot, residuals only (`_backtrack`): a penalty grows so fast with penetration that
-    a full step into an object is rarely any good.
+    limit load) is solved directly in 14 linearisations planar and 16 in 3-D; without it
+    capped Newton wandered (in 3-D past max_newton_steps, so the solve fell back to 55
+    continuation iterations). With contact (objects or a support) every step is instead
+    backtracked on the spot, residuals only (`_backtrack`): a penalty grows so fast with
+    penetration that a full step into an object is rarely any good.
 
     Besides the root it returns the sign of det(J) at the first and the last accepted
     iterate (free from the LU factors), which tells whether the root lies on the branch of
