@@ -199,8 +199,11 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
     (scaled), or when Newton is in its quadratic regime and the predicted next step,
     step_k^3 / step_(k-1)^2, is below a tenth of that: this saves the iteration that would
     only confirm convergence (a 1 % design change is then re-solved in 2 iterations
-    instead of 3). The converged iterate is y - dy, whose residual is not evaluated here
-    (the residual reported in the Solution always is).
+    instead of 3). Also when the full Newton step is below a tenth of the tolerance: with
+    a stiff contact penalty the residual's round-off floor can lie above atol, and a
+    start at the root would otherwise never be confirmed. The converged iterate is
+    y - dy, whose residual is not evaluated here (the residual reported in the Solution
+    always is).
     """
     contact = problem.topo.contact is not None
 
@@ -208,6 +211,10 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         y_t = st.y - st.a * st.dy
         dy, r, sign = _newton_step(problem, lam, y_t, options.linear_solver)
         norm = jnp.sum(r * r)
+        # Newton's own correction (before any line search or cap) in units of the
+        # tolerance: below a tenth, y_t is the root to within round-off, even where the
+        # residual sits on a round-off floor above atol (stiff contact penalties).
+        full = jnp.max(jnp.abs(dy) / (options.atol + options.rtol * jnp.abs(y_t)))
         first = st.k == 0
         accept = first | contact | (norm <= (1.0 - 1e-4 * st.a) * st.norm)
         accept = accept | (st.a < 0.5**max_halvings)
@@ -222,7 +229,8 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         conv = (step < 1.0) & (jnp.max(jnp.abs(r)) < options.atol)
         contracting = (~first) & (step < 1e-2 * st.step)
         predicted = step**3 / jnp.maximum(st.step, 1e-300) ** 2
-        conv = accept & (conv | (contracting & (predicted < 0.1) & (jnp.max(jnp.abs(dy)) < 1e-4)))
+        quadratic = contracting & (predicted < 0.1) & (jnp.max(jnp.abs(dy)) < 1e-4)
+        conv = accept & (conv | (full < 0.1) | quadratic)
         k = st.k + 1
         pick = lambda new, old: jnp.where(accept, new, old)
         return _Newton(
@@ -513,11 +521,17 @@ def _nograd(tree):
     return jax.tree_util.tree_map(lambda x: lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
-def _direct(quiet: Problem, y_start, options):
-    """Newton at full load; accepted when it converges on the branch it started from (the
-    same sign of det J at the first and the last iterate: no fold crossed)."""
+def _direct(quiet: Problem, y_start, options, ref_sign=None):
+    """Newton at full load; accepted when it converges on the branch it started from: the
+    sign of det J at the last iterate is that at the first (no fold crossed), or
+    `ref_sign` when given and nonzero (the sign on the branch being followed: a path of
+    equilibria compares with its last point, not with the start of Newton, which lies off
+    the path and may have either sign)."""
     direct = _newton_lean(quiet, y_start, jnp.ones(()), options)
-    return direct, direct.ok & (direct.sign == direct.sign_first)
+    ref = direct.sign_first
+    if ref_sign is not None:
+        ref = jnp.where(ref_sign == 0.0, ref, ref_sign)
+    return direct, direct.ok & (direct.sign == ref)
 
 
 def _start(problem, init):
@@ -532,17 +546,20 @@ _core_jit = functools.partial(jax.jit, static_argnums=(0, 1, 2))
 
 
 @_core_jit
-def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init):
+def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init, ref_sign=None):
     """Only the direct Newton solve (compiles in about half the time of `_solve_core`);
-    `solve_finger` falls back to the continuation when it is not accepted."""
+    `solve_finger` falls back to the continuation when it is not accepted.
+
+    ref_sign: the sign of det J on the branch being followed (see `_direct`; 0 or None:
+    the sign at Newton's start). Returns (Solution, accepted, sign of det J at the root)."""
     problem = _make_problem(topo, integrator, finger)
     quiet = _nograd(problem)
     _, y_start = _start(quiet, init)
-    direct, ok = _direct(quiet, y_start, options)
+    direct, ok = _direct(quiet, y_start, options, ref_sign)
     one = jnp.ones(())
     y, traj = _attach_implicit_gradient(problem, one, direct.y, options.linear_solver)
     code = RESULTS.where(ok, RESULTS.successful, RESULTS.nonlinear_divergence)
-    return _outputs(problem, y, one, code, direct.k, traj), ok
+    return _outputs(problem, y, one, code, direct.k, traj), ok, direct.sign
 
 
 @_core_jit
@@ -715,7 +732,7 @@ def solve_finger(
     if options.direct_first and _is_concrete((finger, y0)):
         # Called eagerly: compile and run the direct solve alone, and compile the
         # continuation only for fingers that need it.
-        sol, ok = _direct_core(topo, integrator, options, finger, y0)
+        sol, ok, _ = _direct_core(topo, integrator, options, finger, y0)
         if not bool(ok):
             cont = dataclasses.replace(options, direct_first=False)
             failed_its = sol.iterations

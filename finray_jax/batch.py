@@ -35,7 +35,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from . import _solve
 from ._finger import Finger
 from ._rod import Integrator
-from ._solution import RESULTS
+from ._solution import RESULTS, Solution
 from ._solve import SolverOptions, solve_finger, topology_of
 from .design import (
     DesignError,
@@ -114,15 +114,18 @@ def _prepare(topo, base: Finger, values):
     return jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), finger, base), ok
 
 
-def _direct(topo, integrator, options, outputs, base: Finger, values):
-    """Newton at full load from the undeformed state (as `solve_finger` tries first)."""
+def _direct(topo, integrator, options, outputs, base: Finger, init, values):
+    """Newton at full load (as `solve_finger` tries first), from the undeformed state or
+    from `init` (scaled unknowns, shared by the batch)."""
     finger, valid = _prepare(topo, base, values)
-    sol, ok = _solve._direct_core(topo, integrator, options, finger, None)
+    sol, ok, _ = _solve._direct_core(topo, integrator, options, finger, init)
     return _pack(sol, finger, outputs, valid), ok & valid
 
 
-def _full(topo, integrator, options, outputs, base: Finger, values):
-    """Arc-length continuation (and the fold), for designs whose direct solve failed."""
+def _full(topo, integrator, options, outputs, base: Finger, init, values):
+    """Arc-length continuation (and the fold), for designs whose direct solve failed
+    (from the undeformed state: `init` is not used)."""
+    del init
     finger, valid = _prepare(topo, base, values)
     sol = solve_finger(finger, integrator=integrator, options=options, topology=topo)
     return _pack(sol, finger, outputs, valid)
@@ -160,27 +163,49 @@ def _vectorize(stage, mesh, requested: bool | None) -> bool:
 
 
 @eqx.filter_jit
-def _chunk_core(stage, topo, integrator, options, outputs, mesh, vectorize, base: Finger, values):
+def _chunk_core(
+    stage, topo, integrator, options, outputs, mesh, vectorize, base: Finger, init, values
+):
     global _traces
     _traces += 1
     one = functools.partial(stage, topo, integrator, options, outputs)
     if vectorize:
-        fn = jax.vmap(one, in_axes=(None, 0))
+        fn = jax.vmap(one, in_axes=(None, None, 0))
     else:
-        fn = lambda b, v: lax.map(lambda x: one(b, x), v)
+        fn = lambda b, i, v: lax.map(lambda x: one(b, i, x), v)
     if mesh is None:
-        return fn(base, values)
+        return fn(base, init, values)
     # Each device runs its own loops on its rows (no lock step across devices).
     # check_vma=False: the solver's loop carries start replicated and become per-row.
     spec = PartitionSpec(_AXIS)
     return jax.shard_map(
-        fn, mesh=mesh, in_specs=(PartitionSpec(), spec), out_specs=spec, check_vma=False
-    )(base, values)
+        fn,
+        mesh=mesh,
+        in_specs=(PartitionSpec(), PartitionSpec(), spec),
+        out_specs=spec,
+        check_vma=False,
+    )(base, init, values)
 
 
 # --------------------------------------------------------------------------------------
 # Public entry points
 # --------------------------------------------------------------------------------------
+
+
+def _init_unknowns(init, topo):
+    """The shared start of a batch's Newton solves: init's scaled unknowns, or None."""
+    if init is None:
+        return None
+    if not isinstance(init, Solution):
+        raise TypeError(f"init must be a Solution of the base finger, got {type(init).__name__}")
+    y = np.asarray(init.unknowns, dtype=np.float64)
+    n = topo.n_segments * topo.model.n_unknown
+    if init.mode != topo.mode or y.shape != (n,):
+        raise ValueError(
+            f"init is a {init.mode} solution with {y.size} unknowns; the batch's topology is "
+            f"{topo.mode} with {n}: pass a Solution of the base finger in the batch's mode"
+        )
+    return jnp.asarray(y)
 
 
 def _check_values(base: Finger, values: Mapping) -> tuple[dict[str, np.ndarray], int]:
@@ -233,6 +258,7 @@ def iter_batch(
     start: int = 0,
     devices=None,
     vectorize: bool | None = None,
+    init: Solution | None = None,
 ) -> Iterator[tuple[int, BatchResult]]:
     """Solve designs start, start + 1, ... chunk by chunk; yield (first index, BatchResult).
 
@@ -254,12 +280,14 @@ def iter_batch(
     sharding = None if mesh is None else NamedSharding(mesh, PartitionSpec(_AXIS))
     fill = {k: np.asarray(v) for k, v in get_design(base_finger, list(arrays)).items()}
     continuation = dataclasses.replace(options, direct_first=False)
+    y0 = _init_unknowns(init, topo)
 
     def run(stage, opts, rows, n_rows):
         padded = -(-n_rows // n_dev) * n_dev
         chunk = jax.device_put(_pad(arrays, rows, padded, fill), sharding)
         vec = _vectorize(stage, mesh, vectorize)
-        out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, vec, base_finger, chunk)
+        y = y0 if stage is _direct else None
+        out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, vec, base_finger, y, chunk)
         return jax.tree_util.tree_map(np.asarray, out)
 
     for a in range(start, size, chunk_size):
@@ -308,6 +336,7 @@ def solve_batch(
     topology=None,
     devices=None,
     vectorize: bool | None = None,
+    init: Solution | None = None,
 ) -> BatchResult:
     """Solve many designs of one finger: `values` maps design-value names (see
     `finray_jax.design`) to arrays with one row per design; `outputs` names the scalar
@@ -321,7 +350,10 @@ def solve_batch(
     to `lax.map` them one after another; None (default) vmaps on accelerators and maps on
     CPU, where that is faster (see `_vectorize`; on CPU only the direct stage on one
     device can be vmapped). mode: "planar" or "spatial" ("auto" resolves on the base
-    finger). Returns a BatchResult with per-design status.
+    finger). init: a Solution of the base finger (same topology and mode) to start every
+    design's Newton solve from, instead of the undeformed shape: fewer iterations for
+    designs near the base (a design it does not solve is continued from the undeformed
+    shape as usual). Returns a BatchResult with per-design status.
     """
     parts = [
         r
@@ -337,6 +369,7 @@ def solve_batch(
             topology=topology,
             devices=devices,
             vectorize=vectorize,
+            init=init,
         )
     ]
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros((0,))

@@ -7,6 +7,7 @@ The default tests share two compiled programs (vmap and map; the same outputs, v
 names and chunk size): about 15 s each to compile on one core.
 """
 
+import dataclasses
 import os
 import pathlib
 import subprocess
@@ -118,6 +119,23 @@ def test_new_values_never_recompile(clean, clean_vmapped, vectorize):
     assert "/jax/core/compile/backend_compile_duration" not in compiles
 
 
+def test_warm_started_batch_gives_the_same_answers_in_fewer_iterations(clean):
+    """init=: every design starts Newton from the base finger's solution."""
+    values, ref = clean
+    base_sol = fr.solve_finger(BASE, mode="planar")
+    res = batch.solve_batch(BASE, values, OUTS, chunk_size=CHUNK, init=base_sol)
+    assert res.status.tolist() == ["converged"] * 6
+    for k in OUTS:
+        # both converged to the root (tolerance 1e-10 on the scaled unknowns)
+        np.testing.assert_allclose(res.outputs[k], ref.outputs[k], rtol=1e-8, atol=1e-12)
+    assert np.all(res.iterations <= ref.iterations)
+    assert res.iterations.sum() < ref.iterations.sum(), (res.iterations, ref.iterations)
+    # member 2 is solved as a single warm-started solve would be
+    finger = design.set_design(BASE, {k: v[2] for k, v in values.items()})
+    single = fr.solve_finger(finger, mode="planar", init=base_sol)
+    assert int(res.iterations[2]) == int(single.iterations)
+
+
 def test_bad_arguments():
     with pytest.raises(design.DesignError, match="unknown design value 'front.thicknes'"):
         batch.solve_batch(BASE, {"front.thicknes": np.ones(2)}, OUTS)
@@ -131,6 +149,12 @@ def test_bad_arguments():
         batch.solve_batch(BASE, {"material.E": np.ones(2)}, ["tip.d"])
     with pytest.raises(ValueError, match="chunk_size must be a positive integer, got 0"):
         batch.solve_batch(BASE, {"material.E": np.ones(2)}, OUTS, chunk_size=0)
+    with pytest.raises(TypeError, match="init must be a Solution of the base finger, got ndarray"):
+        batch.solve_batch(BASE, {"material.E": np.ones(2)}, OUTS, init=np.zeros(144))
+    planar = fr.solve_finger(BASE, mode="planar")
+    spatial = dataclasses.replace(planar, mode="spatial")  # a mismatch of modes
+    with pytest.raises(ValueError, match="init is a spatial solution with 144 unknowns"):
+        batch.solve_batch(BASE, {"material.E": np.ones(2)}, OUTS, init=spatial)
 
 
 @pytest.mark.slow

@@ -349,6 +349,24 @@ def test_warm_start(sol_l1):
     assert np.max(np.abs(np.asarray(cold.tip.position - sol_l1.tip.position))) > 1e-5
 
 
+def test_a_start_at_the_root_is_confirmed_when_the_residual_floor_exceeds_atol(sol_l1):
+    """Newton started at a root whose residual cannot reach atol (round-off; with a stiff
+    contact penalty this floor lay above the default 1e-10, and a regrasp from a converged
+    grasp ran 20 iterations and failed) converges in one or two iterations: its own full
+    step falls far below the tolerance. atol = 1e-17 puts ref-A's floor (~1e-15) above
+    it."""
+    finger = _ref("L1")
+    strict = _solve.SolverOptions(atol=1e-17)
+    again = fr.solve_finger(finger, mode="planar", options=strict, init=sol_l1)
+    assert again.result == fr.RESULTS.successful, again.status
+    assert float(again.max_residual) > 1e-17  # the floor really is above atol
+    assert int(again.iterations) <= 2
+    # the same root, to sol_l1's own tolerance (1e-10 on the scaled unknowns)
+    np.testing.assert_allclose(
+        np.asarray(again.unknowns), np.asarray(sol_l1.unknowns), rtol=0, atol=1e-10
+    )
+
+
 # --------------------------------------------------------------------------------------
 # (g) adaptors
 # --------------------------------------------------------------------------------------
@@ -563,11 +581,11 @@ def test_rotation_capped_newton_matches_the_continuation(case):
     shape does not get there. (L3 it now solves either way.)"""
     finger = _ref(case)
     topo = fr.topology_of(finger, "planar")
-    direct, ok = _solve._direct_core(topo, fr.Integrator(), _solve.SolverOptions(), finger, None)
+    direct, ok, _ = _solve._direct_core(topo, fr.Integrator(), _solve.SolverOptions(), finger, None)
     assert bool(ok) and direct.result == fr.RESULTS.successful
     if case == "L2":
         plain = _solve.SolverOptions(max_rotation_step=None)
-        _, plain_ok = _solve._direct_core(topo, fr.Integrator(), plain, finger, None)
+        _, plain_ok, _ = _solve._direct_core(topo, fr.Integrator(), plain, finger, None)
         assert not bool(plain_ok)
     cont = fr.solve_finger(finger, mode="planar", options=_solve.SolverOptions(direct_first=False))
     assert int(direct.iterations) < int(cont.iterations)
