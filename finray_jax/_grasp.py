@@ -455,6 +455,8 @@ def regrasp(g: GraspSolution, finger: Finger, closing=None, *, options=SolverOpt
     closing = g.closing if closing is None else closing
     w = jnp.asarray(g.direction)
     moved = _with_stiffness(_moved(finger, -closing * w), g.stiffness)
+    # ref_sign 0 (the sign at g's equilibrium), passed as the stepper passes it: an f64
+    # array, so this call reuses the grasp's compiled program
     sol, _, _ = _direct_core(
         g.topology, g.integrator, options, moved, g.solution.unknowns, np.float64(0.0)
     )
@@ -558,10 +560,9 @@ def release_force(
     else:
         sol = g.solution
     peak_normal = max(normals, default=0.0)
-    prev = None
     while t < max_pull:
-        t_new, sol_new, ok = stepper.follow(at, t, t + step, sol, step, 1e-3 * step, prev)
-        prev = stepper.prev
+        # stepper.prev continues the pull path's extrapolation across the steps
+        t_new, sol_new, ok = stepper.follow(at, t, t + step, sol, step, 1e-3 * step, stepper.prev)
         if t_new > t:
             res = contact_result(at(t_new), sol_new, w)
             t, sol = t_new, sol_new

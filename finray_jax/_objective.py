@@ -88,9 +88,7 @@ def _solve_one(static: _Static, base: Finger, x, unknowns, stiffness, closing, p
     finger = _set_design(base, _values(static, x))
     w, e = jnp.asarray(static.direction), jnp.asarray(static.pull)
     moved = _with_stiffness(_moved(finger, -closing * w + pull * e), stiffness)
-    sol, _, _ = _direct_core(
-        static.topology, static.integrator, static.options, moved, unknowns, jnp.zeros(())
-    )
+    sol, _, _ = _direct_core(static.topology, static.integrator, static.options, moved, unknowns)
     res = contact_result(moved, sol, w)
     if static.objective == "contact_force":
         value = res.normal_force

@@ -286,8 +286,7 @@ def iter_batch(
         padded = -(-n_rows // n_dev) * n_dev
         chunk = jax.device_put(_pad(arrays, rows, padded, fill), sharding)
         vec = _vectorize(stage, mesh, vectorize)
-        y = y0 if stage is _direct else None
-        out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, vec, base_finger, y, chunk)
+        out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, vec, base_finger, y0, chunk)
         return jax.tree_util.tree_map(np.asarray, out)
 
     for a in range(start, size, chunk_size):
