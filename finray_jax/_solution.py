@@ -35,13 +35,40 @@ class BeamSolution(eqx.Module):
     Segment boundaries appear twice (before and after the junction's jump): the arrays are
     blocks of steps + 2 points per segment (its start, then the steps + 1 points of its
     flexible part).
+
+    Stored packed, one row of 19 values per point (`data`: s, position, frame row by row,
+    force, moment; leading axes for stacked crossbeams or a batch), and read through the
+    properties. A compiled solve returns each array of its result as its own buffer at a
+    few microseconds each: with the five arrays per beam apart, returning a Solution cost
+    0.17 ms of a 1.1 ms planar re-solve.
     """
 
-    s: jax.Array
-    position: jax.Array
-    frame: jax.Array
-    force: jax.Array
-    moment: jax.Array
+    data: jax.Array
+
+    @classmethod
+    def pack(cls, s, position, frame, force, moment) -> "BeamSolution":
+        flat = frame.reshape(*frame.shape[:-2], 9)
+        return cls(jnp.concatenate([s[..., None], position, flat, force, moment], axis=-1))
+
+    @property
+    def s(self):
+        return self.data[..., 0]
+
+    @property
+    def position(self):
+        return self.data[..., 1:4]
+
+    @property
+    def frame(self):
+        return self.data[..., 4:13].reshape(*self.data.shape[:-1], 3, 3)
+
+    @property
+    def force(self):
+        return self.data[..., 13:16]
+
+    @property
+    def moment(self):
+        return self.data[..., 16:19]
 
 
 class Reaction(eqx.Module):
@@ -52,9 +79,26 @@ class Reaction(eqx.Module):
 
 
 class Tip(eqx.Module):
-    position: jax.Array
-    displacement: jax.Array
-    rotation: jax.Array  # rotation vector (rad), world frame
+    """The front beam's tip: position, displacement from the undeformed tip and rotation
+    vector (rad, world frame), stored packed as the rows of `data` (..., 3, 3)."""
+
+    data: jax.Array
+
+    @classmethod
+    def pack(cls, position, displacement, rotation) -> "Tip":
+        return cls(jnp.stack([position, displacement, rotation], axis=-2))
+
+    @property
+    def position(self):
+        return self.data[..., 0, :]
+
+    @property
+    def displacement(self):
+        return self.data[..., 1, :]
+
+    @property
+    def rotation(self):
+        return self.data[..., 2, :]
 
 
 class CrossbeamWrenches(eqx.Module):
@@ -82,10 +126,7 @@ class Solution(eqx.Module):
     front: BeamSolution
     back: BeamSolution
     crossbeams: BeamSolution  # stacked over crossbeams: s (C, N), position (C, N, 3) ...
-    reactions_front: Reaction
-    reactions_back: Reaction
     tip: Tip
-    crossbeam_wrenches: CrossbeamWrenches
     unknowns: jax.Array  # scaled shooting unknowns, usable as a warm start
     mode: str = eqx.field(static=True)
     steps: int = eqx.field(static=True, default=0)  # integration steps per segment
@@ -98,8 +139,31 @@ class Solution(eqx.Module):
     def converged(self):
         return self.result == RESULTS.successful
 
+    @property
+    def reactions_front(self) -> Reaction:
+        return _reaction(self.front)
+
+    @property
+    def reactions_back(self) -> Reaction:
+        return _reaction(self.back)
+
+    @property
+    def crossbeam_wrenches(self) -> CrossbeamWrenches:
+        """(C, 3) arrays; (0, 3) when there are no crossbeams."""
+        cb = self.crossbeams
+        return CrossbeamWrenches(
+            front_force=cb.force[..., 0, :],
+            front_moment=cb.moment[..., 0, :],
+            back_force=-cb.force[..., -1, :],
+            back_moment=-cb.moment[..., -1, :],
+        )
+
     def crossbeam(self, i: int) -> BeamSolution:
         return jax.tree_util.tree_map(lambda x: x[i], self.crossbeams)
+
+
+def _reaction(beam: BeamSolution) -> Reaction:
+    return Reaction(-beam.force[..., 0, :], -beam.moment[..., 0, :])
 
 
 def stack_beams(beams):

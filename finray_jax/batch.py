@@ -286,6 +286,8 @@ def iter_batch(
         padded = -(-n_rows // n_dev) * n_dev
         chunk = jax.device_put(_pad(arrays, rows, padded, fill), sharding)
         vec = _vectorize(stage, mesh, vectorize)
+        if vec:  # a vmapped lax.cond runs both branches: chord steps would save nothing
+            opts = dataclasses.replace(opts, reuse_jacobian=False)
         out = _chunk_core(stage, topo, integrator, opts, outputs, mesh, vec, base_finger, y0, chunk)
         return jax.tree_util.tree_map(np.asarray, out)
 
@@ -348,7 +350,8 @@ def solve_batch(
     compiled on first need). vectorize: True to `jax.vmap` the designs of a chunk, False
     to `lax.map` them one after another; None (default) vmaps on accelerators and maps on
     CPU, where that is faster (see `_vectorize`; on CPU only the direct stage on one
-    device can be vmapped). mode: "planar" or "spatial" ("auto" resolves on the base
+    device can be vmapped; a vmapped chunk takes no chord steps, as if
+    options.reuse_jacobian were False). mode: "planar" or "spatial" ("auto" resolves on the base
     finger). init: a Solution of the base finger (same topology and mode) to start every
     design's Newton solve from, instead of the undeformed shape: fewer iterations for
     designs near the base (a design it does not solve is continued from the undeformed

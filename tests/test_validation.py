@@ -370,7 +370,14 @@ def test_integrator_backend():
 
 @pytest.mark.parametrize(
     "field,value",
-    [("rtol", -1), ("atol", 0.0), ("min_arc_step", -1e-3), ("initial_arc_step", "big")],
+    [
+        ("rtol", -1),
+        ("atol", 0.0),
+        ("min_arc_step", -1e-3),
+        ("initial_arc_step", "big"),
+        ("reuse_jacobian_below", 0.0),
+        ("reuse_jacobian", "yes"),
+    ],
 )
 def test_solver_options_tolerances(field, value):
     with pytest.raises(ValueError, match=f"SolverOptions.{field}.*{re.escape(repr(value))}"):
