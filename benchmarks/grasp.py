@@ -17,6 +17,8 @@ import finray_jax as fr
 from finray_jax import io as fio
 from finray_jax.studies import MODIFIED, with_adaptor, with_object
 
+NEWTON = fr.SolverOptions(reuse_jacobian=False)  # the in-run baseline: no chord steps
+
 
 def main():
     ap = argparse.ArgumentParser()
@@ -63,11 +65,30 @@ def main():
             "holding_force_N": tr.peak,
             "targets": {"grasp_s": 0.05, "release_trace_s": 1.0},
         }
+        # In-run baseline: the same grasp and release trace without chord steps.
+        g_n = fr.grasp(f, 6.0, options=NEWTON)
+        fr.release_force(g_n, step=2.0, options=NEWTON)
+        case["newton_only"] = {
+            "grasp_s": median_time(
+                lambda f=f: fr.grasp(f, 6.0, options=NEWTON), repeats=repeats, min_total=0
+            )[0],
+            "grasp_solves": g_n.steps,
+            "release_trace_s": median_time(
+                lambda g=g_n: fr.release_force(g, step=2.0, options=NEWTON),
+                repeats=max(2, repeats // 2),
+                min_total=0,
+            )[0],
+        }
         results["cases"][name] = case
         print(
             f"{name:9s} grasp {1e3 * grasp_t:8.1f} ms ({g.steps} Newton solves; first call "
             f"{compile_s:.1f} s), release trace {release_t:.2f} s ({len(tr.pull)} steps), "
             f"contact force {case['normal_force_N']:.3f} N, holding {tr.peak:.3f} N"
+        )
+        nw = case["newton_only"]
+        print(
+            f"{'':9s} Newton only (no chord steps): grasp {1e3 * nw['grasp_s']:8.1f} ms "
+            f"({nw['grasp_solves']} solves), release trace {nw['release_trace_s']:.2f} s"
         )
     path = write("grasp", results)
     print(f"wrote {path}")

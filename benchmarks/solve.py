@@ -10,7 +10,8 @@ Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   solution (init=...), median of repeats.
 Baselines timed in the same run for L1, so figures from noisy machines can be compared:
 the same solve through `diffrax.diffeqsolve` instead of the tableau stepper, and with
-the dense LU (`SolverOptions(linear_solver="dense")`) instead of the banded one.
+the dense LU (`SolverOptions(linear_solver="dense")`) instead of the banded one, and
+(every case) Newton without chord steps (`SolverOptions(reuse_jacobian=False)`).
 
 And what a new process pays for its first `solve_finger` (as in a CLI run, which keeps
 JAX's compilation cache on disk), with that cache empty and filled (child processes).
@@ -164,6 +165,17 @@ def main():
             f"baseline dense LU L1 {mode}: compile {d['compile_s']:.1f} s  cold "
             f"{d['cold_ms']:.2f} ms  warm {d['warm_ms']:.2f} ms"
         )
+    newton = []  # the same solves without chord steps (SolverOptions.reuse_jacobian)
+    for mode in ("planar", "spatial"):
+        for case in cases:
+            d = bench_case(case, mode, repeats=5, opts=fr.SolverOptions(reuse_jacobian=False))
+            newton.append(d)
+            print(
+                f"baseline Newton only {case} {mode}: cold {d['cold_ms']:.2f} ms "
+                f"({d['iterations_cold']} it)  warm {d['warm_ms']:.2f} ms "
+                f"({d['iterations_warm']} it)",
+                flush=True,
+            )
     path = write(
         "solve",
         {
@@ -174,6 +186,7 @@ def main():
             "new_process": fresh,
             "baseline_diffeqsolve": base,
             "baseline_dense_lu": dense,
+            "baseline_newton_only": newton,
         },
     )
     print(f"wrote {path}")
