@@ -278,7 +278,8 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))
         step = jnp.max(jnp.abs(dy) / scale)
-        near = jnp.max(jnp.abs(dy)) < 1e-4
+        biggest = jnp.max(jnp.abs(dy))
+        near = biggest < 1e-4
         conv = (step < 1.0) & (jnp.max(jnp.abs(r)) < options.atol)
         ratio = step / jnp.maximum(st.step, 1e-300)
         # Newton's quadratic regime: the next step would be step^3 / previous^2. A chord
@@ -289,7 +290,7 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         # The next iteration reuses these factors while that is cheaper than linearising:
         # after a short Newton step, or a chord step that contracted tenfold. (With a
         # fourfold bound the grasp's release traces stalled at max_newton_steps.)
-        short = jnp.max(jnp.abs(dy)) < options.reuse_jacobian_below
+        short = biggest < options.reuse_jacobian_below
         reuse_next = accept & jnp.where(st.reuse, ratio < 0.1, short)
         k = st.k + 1
         pick = lambda new, old: jnp.where(accept, new, old)
@@ -297,7 +298,7 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
             y=jnp.where(conv, y, pick(y_t, st.y)),
             norm=pick(norm, st.norm),
             dy=pick(dy, st.dy),
-            a=jnp.where(accept | retry, 1.0, 0.5) * jnp.where(accept, 1.0, st.a),
+            a=jnp.where(accept, 1.0, jnp.where(retry, st.a, 0.5 * st.a)),
             step=pick(step, st.step),
             k=k,
             done=conv | (accept & ~finite) | (k >= options.max_newton_steps),
@@ -682,11 +683,6 @@ def _outputs(problem: Problem, y, lam, code, iterations, traj=None) -> Solution:
     q_problem, q_traj, q_lam = _nograd((problem, traj, lam))
     r = q_problem.residual_from_states(q_traj[:, 0], q_traj[:, -1], q_lam)
 
-    def beam(a, z, count=1):
-        """Segments a..z-1 as `count` beams of equal length."""
-        shape = (count, -1) if count > 1 else (-1,)
-        return BeamSolution(every[a:z].reshape(*shape, every.shape[-1]))
-
     st = traj.reshape(-1, traj.shape[-1])
     every = BeamSolution.pack(  # every point at once, then the beams are sliced from it
         s.reshape(-1),
@@ -695,15 +691,14 @@ def _outputs(problem: Problem, y, lam, code, iterations, traj=None) -> Solution:
         jax.vmap(md.force)(st),
         jax.vmap(md.moment)(st),
     ).data.reshape(*traj.shape[:2], -1)
-    front = beam(topo.first[FRONT], topo.last[FRONT] + 1)
-    back = beam(topo.first[BACK], topo.last[BACK] + 1)
-    first, last, n_cb = topo.first[2:], topo.last[2:], topo.n_crossbeams
-    if n_cb == 0:
-        crossbeams = _empty_beams(front)
-    elif _evenly_contiguous(first, last):
-        crossbeams = beam(first[0], last[-1] + 1, n_cb)
-    else:
-        crossbeams = stack_beams([beam(a, z + 1) for a, z in zip(first, last)])
+
+    def beam(b):
+        a, z = topo.first[b], topo.last[b] + 1
+        return BeamSolution(every[a:z].reshape(-1, every.shape[-1]))
+
+    front, back = beam(FRONT), beam(BACK)
+    cbs = [beam(2 + j) for j in range(topo.n_crossbeams)]
+    crossbeams = stack_beams(cbs) if cbs else _empty_beams(front)
 
     tip0 = arc_point(geo.base[FRONT], geo.theta[FRONT], geo.curvature[FRONT], geo.length[FRONT])
     theta_tip0 = geo.theta[FRONT] + geo.curvature[FRONT] * geo.length[FRONT]
@@ -722,12 +717,6 @@ def _outputs(problem: Problem, y, lam, code, iterations, traj=None) -> Solution:
         mode=topo.mode,
         steps=problem.integrator.steps,
     )
-
-
-def _evenly_contiguous(first, last) -> bool:
-    """Whether beams first[i]..last[i] follow one another with equal segment counts."""
-    counts = {z - a for a, z in zip(first, last)}
-    return len(counts) == 1 and all(a == z + 1 for a, z in zip(first[1:], last[:-1]))
 
 
 def _empty_beams(like: BeamSolution):
