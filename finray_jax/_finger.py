@@ -10,7 +10,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._contact import Contact
-from ._geometry import arc_point, geometry, main_beam_arc, xz
+from ._geometry import geometry, main_beam_arc, main_beam_samples, xz
 from ._objects import AbstractObject
 from ._types import as_float
 
@@ -464,16 +464,11 @@ def _validate_object(where: str, obj) -> None:
 def _overlap(finger: Finger, obj, samples: int = 401):
     """(beam, s, depth) of the deepest overlap of an object with a main beam's band at the
     start, or None."""
-    geo = _geometry(finger)
+    s, p, h = (np.asarray(x) for x in main_beam_samples(finger, samples))
+    gap = np.asarray(obj.signed_distance(p)) - h
     worst = None
-    for b, name, sec in ((FRONT, "front", finger.front), (BACK, "back", finger.back)):
-        length = float(geo.length[b])
-        s = np.linspace(0.0, length, samples)
-        p = np.asarray(arc_point(geo.base[b], geo.theta[b], geo.curvature[b], s))[:, ::2]
-        tip = sec.thickness if sec.tip_thickness is None else sec.tip_thickness
-        h = 0.5 * (float(sec.thickness) + (float(tip) - float(sec.thickness)) * s / length)
-        gap = np.asarray(obj.signed_distance(p)) - h
-        i = int(np.argmin(gap))
-        if gap[i] < 0 and (worst is None or -gap[i] > worst[2]):
-            worst = (name, float(s[i]), float(-gap[i]))
+    for b, name in ((FRONT, "front"), (BACK, "back")):
+        i = int(np.argmin(gap[b]))
+        if gap[b, i] < 0 and (worst is None or -gap[b, i] > worst[2]):
+            worst = (name, float(s[b, i]), float(-gap[b, i]))
     return worst

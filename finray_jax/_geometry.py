@@ -5,6 +5,8 @@ precurvature; crossbeams are straight between their attachment points. Everythin
 plain jax.numpy: it runs traced inside the solver and eagerly in the validation.
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -77,6 +79,22 @@ def geometry(finger) -> Geometry:
     m = finger.material
     ei_front = m.E * finger.front.depth * finger.front.thickness**3 / 12.0
     return Geometry(base, theta, length, curvature, lf, ei_front / lf**2)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def main_beam_samples(finger, n: int):
+    """The undeformed main beams at n evenly spaced arc lengths each, for eager checks:
+    arc lengths (2, n), centreline points (x, z) (2, n, 2) and half thicknesses (2, n),
+    front beam first. (Jitted: eagerly, the few dozen small operations cost ~10 ms.)"""
+    geo = geometry(finger)
+    out = []
+    for b, sec in ((0, finger.front), (1, finger.back)):
+        s = jnp.linspace(0.0, 1.0, n) * geo.length[b]
+        p = arc_point(geo.base[b], geo.theta[b], geo.curvature[b], s)[:, ::2]
+        tip = sec.thickness if sec.tip_thickness is None else sec.tip_thickness
+        h = 0.5 * (sec.thickness + (tip - sec.thickness) * s / geo.length[b])
+        out.append((s, p, h))
+    return tuple(jnp.stack(x) for x in zip(*out))
 
 
 def section_stiffness(material, thickness, depth, torsion: str):

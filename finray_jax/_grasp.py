@@ -10,6 +10,8 @@ of the first about the object's plane of symmetry, so only one finger is solved 
 holding force is twice that finger's.
 """
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -20,7 +22,7 @@ from ._finger import BACK, FRONT, Finger, FingerError
 from ._objects import _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
-from ._solve import SolverOptions, _direct_core, prepare
+from ._solve import SolverOptions, _direct_core, prepare, resolve_mode
 from ._types import as_float
 
 GRASP_STEPS = 16  # default integration steps per segment for contact problems
@@ -211,8 +213,9 @@ class GraspSolution(eqx.Module):
 
 
 def _moved(finger: Finger, displacement) -> Finger:
+    # (dataclasses.replace: half the cost of eqx.tree_at, which a path pays per step)
     objs = tuple(o.moved(displacement) for o in finger.objects)
-    return eqx.tree_at(lambda f: f.objects, finger, objs)
+    return dataclasses.replace(finger, objects=objs)
 
 
 def _with_contact(finger: Finger, **values) -> Finger:
@@ -245,8 +248,9 @@ def _shape_key(topo):
 class _Stepper:
     """Warm-started equilibria along a path of object displacements, with step halving.
 
-    validate: check the finger (False for a finger whose objects were moved into contact
-    by a previous grasp: its start no longer has the objects clear of the beams)."""
+    validate: check the finger (False when the caller has checked it, or for a finger
+    whose objects were moved into contact by a previous grasp: its start no longer has the
+    objects clear of the beams)."""
 
     def __init__(self, finger, mode, integrator, options, validate=True, topology=None):
         from ._assembly import build_topology
@@ -257,7 +261,7 @@ class _Stepper:
             self.topo = prepare(finger, mode)
         else:
             check_x64("finray_jax")
-            self.topo = build_topology(finger, mode)
+            self.topo = build_topology(finger, resolve_mode(finger, mode))
         if topology is not None:
             if _shape_key(topology) != _shape_key(self.topo):
                 raise FingerError(
@@ -329,15 +333,12 @@ def _check_objects(finger: Finger, w):
     if not finger.objects:
         raise FingerError("grasp needs at least one object (Finger.objects is empty)")
     from ._finger import validate_finger
-    from ._geometry import arc_point, geometry
+    from ._geometry import main_beam_samples
 
+    if not isinstance(finger, Finger):
+        raise TypeError(f"expected a Finger, got {type(finger).__name__}")
     validate_finger(finger)
-    geo = geometry(finger)
-    pts = []
-    for b in (FRONT, BACK):
-        s = np.linspace(0.0, float(geo.length[b]), 201)
-        pts.append(np.asarray(arc_point(geo.base[b], geo.theta[b], geo.curvature[b], s))[:, ::2])
-    pts = np.concatenate(pts)
+    pts = np.asarray(main_beam_samples(finger, 201)[1]).reshape(-1, 2)
     across = np.array([-w[1], w[0]])
     lo, hi = np.min(pts @ across), np.max(pts @ across)
     for i, obj in enumerate(finger.objects):
@@ -394,7 +395,8 @@ def grasp(
         fa = float(np.asarray(actuator_force))
         if not np.isfinite(fa) or fa < 0:
             raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
-    stepper = _Stepper(finger, mode, integrator, options, topology=topology)
+    # (_check_objects validated the finger)
+    stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
     k = float(
         default_stiffness(finger) if finger.contact.stiffness is None else finger.contact.stiffness
     )

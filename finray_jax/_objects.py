@@ -12,6 +12,7 @@ convex polygons and half-planes); every norm is a safe one, so gradients stay fi
 the surface.
 """
 
+import dataclasses
 from typing import ClassVar
 
 import equinox as eqx
@@ -62,14 +63,11 @@ class AbstractObject(eqx.Module):
 
     def moved(self, displacement) -> "AbstractObject":
         """The same object translated by `displacement` (x, z)."""
-        return eqx.tree_at(lambda o: o.center, self, self.center + as_float(displacement))
+        return dataclasses.replace(self, center=self.center + as_float(displacement))
 
     def signed_distance(self, p):
         """Signed distance of world point(s) p (..., 2) from this object's surface."""
-        p = as_float(p)
-        q = self.params()
-        d = jax.vmap(lambda x: self.distance(q, x))(p.reshape(-1, 2))
-        return d.reshape(p.shape[:-1])
+        return _signed_distance(self, as_float(p))
 
     def bounds(self) -> np.ndarray:
         """Axis-aligned bounding box [[xmin, zmin], [xmax, zmax]] (may be infinite)."""
@@ -78,6 +76,13 @@ class AbstractObject(eqx.Module):
     def outline(self, n: int = 200) -> np.ndarray:
         """Points (n, 2) on the boundary, for plots (a half-plane gives a long segment)."""
         raise NotImplementedError
+
+
+@eqx.filter_jit
+def _signed_distance(obj: AbstractObject, p):
+    q = obj.params()
+    d = jax.vmap(lambda x: obj.distance(q, x))(p.reshape(-1, 2))
+    return d.reshape(p.shape[:-1])
 
 
 class Circle(AbstractObject):
@@ -258,7 +263,7 @@ class HalfPlane(AbstractObject):
         return self.point
 
     def moved(self, displacement):
-        return eqx.tree_at(lambda o: o.point, self, self.point + as_float(displacement))
+        return dataclasses.replace(self, point=self.point + as_float(displacement))
 
     def params(self):
         return jnp.concatenate([self.point, self.normal / _safe_norm(self.normal)])

@@ -149,6 +149,7 @@ class _Newton(eqx.Module):
     sign: jax.Array
     factors: object  # of the Jacobian at the last accepted linearisation
     reuse: jax.Array  # whether the next iteration reuses `factors`
+    r_next: jax.Array  # with contact: the residual at the next trial point (backtracking's)
 
 
 def _linearise(problem, lam, y, linear_solver):
@@ -193,17 +194,23 @@ def _backtrack(problem, lam, y, dy, r, max_halvings=12):
     """Shorten a Newton step until the residual norm decreases (Armijo, factor 1/2).
 
     Contact penalties make the residual grow fast with penetration; a full step taken from
-    a state without contact can run deep into an object, so the step is cut back."""
+    a state without contact can run deep into an object, so the step is cut back. Returns
+    the step and the residual at its end (y - step)."""
     norm0 = jnp.sum(r * r)
+    fn = lambda a: _natural_fn(y - a * dy, (problem, lam))
 
     def worse(c):
-        a, k = c
-        rr = _natural_fn(y - a * dy, (problem, lam))
+        a, k, rr = c
         n = jnp.sum(rr * rr)
         return (~(n <= (1.0 - 1e-4 * a) * norm0)) & (k < max_halvings)
 
-    a, _ = lax.while_loop(worse, lambda c: (0.5 * c[0], c[1] + 1), (jnp.ones(()), 0))
-    return a * dy
+    def halve(c):
+        a, k, _ = c
+        return 0.5 * a, k + 1, fn(0.5 * a)
+
+    one = jnp.ones((), dy.dtype)
+    a, _, rr = lax.while_loop(worse, halve, (one, 0, fn(one)))
+    return a * dy, rr
 
 
 def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halvings=12):
@@ -249,7 +256,9 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         return _linearise(problem, lam, y_t, solver)
 
     def reused(y_t, st):
-        return _natural_fn(y_t, (problem, lam)), st.factors, st.sign
+        # With contact the backtracking has evaluated the residual at y_t already.
+        r = st.r_next if contact else _natural_fn(y_t, (problem, lam))
+        return r, st.factors, st.sign
 
     def body(st: _Newton):
         y_t = st.y - st.a * st.dy
@@ -270,10 +279,11 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         retry = jnp.asarray(False) if contact else st.reuse & ~decreased
         accept = first | contact | decreased
         accept = accept | ((st.a < 0.5**max_halvings) & ~retry)
-        if contact:
-            dy = _backtrack(problem, lam, y_t, dy, r, max_halvings)
         if options.max_rotation_step is not None:
             dy = _cap_rotation(problem, dy, options.max_rotation_step)
+        r_next = st.r_next
+        if contact:  # (after the cap: r_next is the residual where the step ends)
+            dy, r_next = _backtrack(problem, lam, y_t, dy, r, max_halvings)
         y = y_t - dy
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))
@@ -307,6 +317,7 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
             sign=pick(sign, st.sign),
             factors=jax.tree_util.tree_map(pick, factors, st.factors),
             reuse=options.reuse_jacobian & reuse_next,
+            r_next=r_next,
         )
 
     _, factors, _ = jax.eval_shape(lambda: _linearise(problem, lam, y0, solver))
@@ -323,6 +334,7 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         sign=jnp.asarray(0.0),
         factors=jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), factors),
         reuse=jnp.asarray(False),
+        r_next=jnp.zeros_like(y0),
     )
     return lax.while_loop(lambda st: ~st.done, body, init)
 
