@@ -366,3 +366,46 @@ def test_banded_newton_step_on_the_contact_jacobian(grasps):
 
     g = grasps[1]
     check_banded_step(g.finger, g.topology)
+
+
+def test_chord_steps_with_contact_reach_newtons_root(finger1, grasps):
+    """With contact a chord step reuses the residual that the backtracking of the step
+    before evaluated where it ends. A stale residual would steer the chord steps to a
+    wrong point: the solve must reach Newton's root, and the residual the outputs
+    re-evaluate must be small."""
+    original, _ = grasps
+    chord, c_chord = fr.regrasp(original, finger1, 5.1)
+    newton, c_newton = fr.regrasp(
+        original, finger1, 5.1, options=fr.SolverOptions(reuse_jacobian=False)
+    )
+    assert chord.status == newton.status == "converged"
+    assert float(chord.max_residual) < 1e-8 and float(newton.max_residual) < 1e-8
+    assert float(c_chord.normal_force) == pytest.approx(float(c_newton.normal_force), rel=1e-9)
+    gap = np.max(np.abs(np.asarray(chord.front.position) - np.asarray(newton.front.position)))
+    assert gap < 1e-8
+
+
+def test_main_beam_samples_follow_the_undeformed_beams():
+    """The jitted samples the eager checks use: from base to tip along each beam's arc,
+    with the (tapered) half thickness."""
+    from finray_jax._geometry import arc_point, geometry, main_beam_samples
+
+    finger = fr.ref_finger_a("L1")
+    finger = eqx.tree_at(
+        lambda f: (f.front_curvature, f.front.tip_thickness),
+        finger,
+        (jnp.asarray(0.004), jnp.asarray(1.0)),
+        is_leaf=lambda x: x is None,
+    )
+    s, p, h = (np.asarray(x) for x in main_beam_samples(finger, 11))
+    geo = geometry(finger)
+    tip = np.asarray(finger.tip)
+    for b, base in ((0, finger.front_base), (1, finger.back_base)):
+        assert s[b, 0] == 0.0 and s[b, -1] == pytest.approx(float(geo.length[b]), rel=1e-14)
+        np.testing.assert_allclose(p[b, 0], np.asarray(base), atol=1e-12)
+        np.testing.assert_allclose(p[b, -1], tip, atol=1e-9)
+        mid = np.asarray(arc_point(geo.base[b], geo.theta[b], geo.curvature[b], s[b, 5]))[::2]
+        np.testing.assert_allclose(p[b, 5], mid, atol=1e-12)
+    front, back = float(finger.front.thickness), float(finger.back.thickness)
+    np.testing.assert_allclose(h[0], 0.5 * (front + (1.0 - front) * s[0] / s[0, -1]), rtol=1e-14)
+    np.testing.assert_allclose(h[1], 0.5 * back, rtol=1e-14)
