@@ -329,14 +329,15 @@ def _growth(iterations: int) -> float:
 
 
 def _check_objects(finger: Finger, w):
-    """Objects must lie ahead of the finger's front side and within its span."""
-    if not finger.objects:
-        raise FingerError("grasp needs at least one object (Finger.objects is empty)")
+    """The finger is valid (this is the grasp's one validation); its objects lie ahead of
+    its front side and within its span."""
     from ._finger import validate_finger
     from ._geometry import main_beam_samples
 
     if not isinstance(finger, Finger):
         raise TypeError(f"expected a Finger, got {type(finger).__name__}")
+    if not finger.objects:
+        raise FingerError("grasp needs at least one object (Finger.objects is empty)")
     validate_finger(finger)
     pts = np.asarray(main_beam_samples(finger, 201)[1]).reshape(-1, 2)
     across = np.array([-w[1], w[0]])

@@ -291,6 +291,11 @@ def test_bad_input_is_named(finger1):
         fr.validate_finger(eqx.tree_at(lambda f: f.objects, finger1, (bad,)))
     with pytest.raises(fr.FingerError, match=r"closing must be a non-negative"):
         fr.grasp(finger1, -1.0)
+    # grasp validates the finger once, itself: an overlap and a non-finger are caught
+    with pytest.raises(fr.FingerError, match=r"objects\[0\] \(circle\) overlaps the front beam"):
+        fr.grasp(eqx.tree_at(lambda f: f.objects, finger1, (fr.Circle((-1.0, 60.0), 9.0),)), 5.0)
+    with pytest.raises(TypeError, match=r"expected a Finger, got dict"):
+        fr.grasp({"objects": ()}, 5.0)
     with pytest.raises(fr.FingerError, match=r"friction must be a non-negative"):
         fr.release_force(fr.grasp(finger1, 0.0), friction=-0.1)
 
