@@ -414,3 +414,19 @@ def test_main_beam_samples_follow_the_undeformed_beams():
     front, back = float(finger.front.thickness), float(finger.back.thickness)
     np.testing.assert_allclose(h[0], 0.5 * (front + (1.0 - front) * s[0] / s[0, -1]), rtol=1e-14)
     np.testing.assert_allclose(h[1], 0.5 * back, rtol=1e-14)
+
+
+def test_release_trace_follows_one_branch_whatever_the_step(grasps):
+    """Every point of a release trace is the equilibrium with the object at that pull, so
+    traces in 4 mm and 2 mm steps must agree where their pulls coincide, unless one of
+    them jumped to another equilibrium branch. (The modified adaptor's frictionless pull
+    has other branches nearby: a quadratic predictor once landed on one holding 1.25 N.)"""
+    _, modified = grasps
+    coarse = fr.release_force(modified, step=4.0)
+    fine = fr.release_force(modified, step=2.0)
+    assert coarse.complete and fine.complete
+    common = np.intersect1d(np.round(coarse.pull, 9), np.round(fine.pull, 9))
+    assert common.size >= 8
+    at = lambda tr: np.asarray([tr.force[np.argmin(np.abs(tr.pull - p))] for p in common])
+    scale = float(np.max(np.abs(fine.force)))
+    np.testing.assert_allclose(at(coarse), at(fine), rtol=0, atol=1e-6 * scale)
