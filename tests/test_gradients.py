@@ -504,3 +504,35 @@ def test_design_values_never_recompile():
             np.max(np.abs(np.asarray(back) - np.asarray(ref[2]))),
         )
         assert moved > 1e-6, f"{name} did not change the answer"
+
+
+@pytest.mark.parametrize("mode", ["planar", "spatial"])
+def test_rigid_column_shares_the_length_direction(mode):
+    """flow_jacobians derives d/d rigid from the length column's integrated direction and
+    the state Jacobian (the rigid transport's start tangent) instead of integrating it:
+    the same Jacobians at every step point as integrating both, on a back beam clamped
+    over 7 mm with a distributed load inside the clamp (so the transport moves the
+    position, the force and the moment)."""
+    from finray_jax import _rod, _solve
+    from finray_jax._finger import DistributedLoad
+
+    f = design.set_design(fr.ref_finger_a("L3"), {"adaptor.back_clamp_length": 7.0})
+    f = f.with_loads(*f.loads, DistributedLoad(1, (0.0, 20.0), (0.3, 0.0, 0.2)))
+    topo = fr.topology_of(f, mode)
+    integ = fr.Integrator()
+    y = fr.solve_finger(f, topology=topo).unknowns
+    p = _solve._nograd(_solve._make_problem(topo, integ, f))
+    Y0 = p.start_states(y.reshape(p.table.length.shape[0], -1))
+    Q = p.params(1.0)
+    assert int(jnp.sum(p.table.rigid > 0)) >= 1
+    cols = np.array([0, 1, 5])
+    run = lambda merge: _rod.flow_jacobians(
+        p.model, integ, Y0, Q, save_all=True, q_columns=cols, merge_rigid=merge
+    )
+    out, jy, jq = jax.jit(lambda: run(True))()
+    out0, jy0, jq0 = jax.jit(lambda: run(False))()
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(out0))
+    np.testing.assert_allclose(np.asarray(jy), np.asarray(jy0), rtol=0, atol=1e-13)
+    scale = float(jnp.max(jnp.abs(jq0[..., 1])))
+    assert scale > 1.0
+    np.testing.assert_allclose(np.asarray(jq), np.asarray(jq0), rtol=0, atol=1e-12 * scale)
