@@ -81,6 +81,13 @@ def geometry(finger) -> Geometry:
     return Geometry(base, theta, length, curvature, lf, ei_front / lf**2)
 
 
+def thickness_at(section, s, length):
+    """A main beam's thickness at arc length s: linear from its base to its tip
+    (`tip_thickness`, None: constant) over the beam's length."""
+    tip = section.thickness if section.tip_thickness is None else section.tip_thickness
+    return section.thickness + (tip - section.thickness) * s / length
+
+
 @functools.partial(jax.jit, static_argnums=1)
 def main_beam_samples(finger, n: int):
     """The undeformed main beams at n evenly spaced arc lengths each, for eager checks:
@@ -91,9 +98,7 @@ def main_beam_samples(finger, n: int):
     for b, sec in ((0, finger.front), (1, finger.back)):
         s = jnp.linspace(0.0, 1.0, n) * geo.length[b]
         p = arc_point(geo.base[b], geo.theta[b], geo.curvature[b], s)[:, ::2]
-        tip = sec.thickness if sec.tip_thickness is None else sec.tip_thickness
-        h = 0.5 * (sec.thickness + (tip - sec.thickness) * s / geo.length[b])
-        out.append((s, p, h))
+        out.append((s, p, 0.5 * thickness_at(sec, s, geo.length[b])))
     return tuple(jnp.stack(x) for x in zip(*out))
 
 

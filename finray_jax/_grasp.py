@@ -56,12 +56,6 @@ class ContactResult(eqx.Module):
     actuator_force: jax.Array
 
 
-def _half_thickness(finger: Finger, beam: int, s, length):
-    sec = finger.front if beam == FRONT else finger.back
-    tip = sec.thickness if sec.tip_thickness is None else sec.tip_thickness
-    return 0.5 * (sec.thickness + (tip - sec.thickness) * s / length)
-
-
 def _blocks(x, steps):
     return x.reshape((-1, steps + 2) + x.shape[1:])
 
@@ -75,7 +69,7 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
     Sampled pressures at the solution points split it between objects and support and
     give the normal force.
     """
-    from ._geometry import geometry
+    from ._geometry import geometry, thickness_at
 
     geo = geometry(finger)
     c = finger.contact
@@ -91,7 +85,9 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
     w = jnp.insert(as_float(direction), 1, 0.0)
     for beam, bs in ((FRONT, sol.front), (BACK, sol.back)):
         p = bs.position[:, ::2]
-        h = _half_thickness(finger, beam, bs.s, geo.length[beam])
+        h = 0.5 * thickness_at(
+            finger.front if beam == FRONT else finger.back, bs.s, geo.length[beam]
+        )
         free = bs.s > clamp[beam]  # no contact inside a clamp
         q_obj = jnp.zeros_like(bs.s)  # normal pressure from objects
         f_obj = jnp.zeros((bs.s.shape[0], 2))  # force per length from objects

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 
 from ._finger import BACK, FRONT, Finger
-from ._geometry import arc_point, geometry, xz
+from ._geometry import arc_point, geometry, thickness_at, xz
 from ._types import as_float
 
 __all__ = [
@@ -299,9 +299,7 @@ def main_beam_strain(sol, finger: Finger, beam: int):
     bs = sol.front if beam == FRONT else sol.back
     sec = finger.front if beam == FRONT else finger.back
     clamp = (finger.adaptor.front_clamp_length, finger.adaptor.back_clamp_length)[beam]
-    t = sec.thickness * jnp.ones_like(bs.s)
-    if sec.tip_thickness is not None:
-        t = t + (sec.tip_thickness - sec.thickness) * bs.s / geometry(finger).length[beam]
+    t = thickness_at(sec, bs.s, geometry(finger).length[beam])
     E, d = finger.material.E, sec.depth
     n3 = jnp.einsum("ni,ni->n", bs.force, bs.frame[:, :, 2])
     m2 = jnp.einsum("ni,ni->n", bs.moment, bs.frame[:, :, 1])
