@@ -144,6 +144,16 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="override [solver] mode (default: the file's, else auto)",
     )
+    s.add_argument(
+        "--check-resolution",
+        nargs="?",
+        const=1e-6,
+        default=None,
+        type=_finite_float,
+        metavar="RTOL",
+        help="also solve at 2x and 4x the steps per segment and estimate the integration "
+        "error (relative tip error that counts as resolved: RTOL, default 1e-6)",
+    )
 
     lim = sub.add_parser(
         "limit",
@@ -349,14 +359,38 @@ def _solve(finger, settings, mode):
     return sol, time.perf_counter() - t0
 
 
+def _check_resolution(finger, settings, sol, rtol):
+    """The step-doubling check of a converged solve (None when not asked for)."""
+    if rtol is None:
+        return None
+    if sol.status != "converged":
+        print("resolution: not checked (the solve did not converge)")
+        return None
+    from .resolution import check_resolution
+
+    print(f"resolution: solving at {2 * sol.steps} and {4 * sol.steps} steps per segment ...")
+    kwargs = settings.solve_kwargs()
+    kwargs["mode"] = sol.mode
+    check = check_resolution(finger, rtol=rtol, solution=sol, **kwargs)
+    print(f"resolution: {check.message}")
+    return check
+
+
 def _cmd_solve(args) -> int:
+    rtol = args.check_resolution
+    if rtol is not None and not 0.0 < rtol < 1.0:
+        raise UserError(f"--check-resolution: RTOL must lie in (0, 1), got {rtol:g}")
     finger, settings = fio.load_finger(args.finger)
     if args.load_scale is not None:
         finger = finger.scale_loads(args.load_scale)
     sol, elapsed = _solve(finger, settings, args.mode)
     print(_summary(sol, finger, settings, args.finger, elapsed))
+    check = _check_resolution(finger, settings, sol, rtol)
     if args.out:
-        fio.write_json(args.out, fio.solution_to_dict(sol, finger, settings=settings))
+        out = fio.solution_to_dict(sol, finger, settings=settings)
+        if check is not None:
+            out["resolution"] = check.to_dict()
+        fio.write_json(args.out, out)
         print(f"wrote {args.out}")
     if args.plot:
         from .plot import save_solution_figure

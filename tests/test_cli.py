@@ -218,6 +218,8 @@ def test_missing_file(tmp_path, capsys):
         ["solve", REF_A, "--mode", "3d"],
         ["solve", REF_A, "--load-scale", "abc"],
         ["solve", REF_A, "--load-scale", "nan"],
+        ["solve", REF_A, "--check-resolution", "0"],
+        ["solve", REF_A, "--check-resolution", "abc"],
     ],
 )
 def test_usage_errors(argv, capsys):

@@ -1,0 +1,139 @@
+"""The step-doubling check of the integration error (`finray_jax.check_resolution`).
+
+The default tests check the bookkeeping (which points two solves share, the verdicts and
+messages, bad input). The slow ones compile solves at several step counts and check the
+estimate against the error measured against an independent fine solve.
+"""
+
+import json
+import math
+import types
+
+import numpy as np
+import pytest
+
+import finray_jax as fr
+from finray_jax.resolution import ResolutionCheck, _shared_points, check_resolution
+
+
+def _check(observed, rel=1e-7, status="converged", suggested=6, solutions=(None, None, None)):
+    return ResolutionCheck(
+        steps=(10, 20, 40),
+        order=5,
+        observed_order=observed,
+        tip_error=rel * 20.0,
+        tip_relative_error=rel,
+        shape_error=2.0 * rel * 20.0,
+        reaction_error=1e-8,
+        suggested_steps=suggested,
+        rtol=1e-6,
+        status=status,
+        solutions=solutions,
+    )
+
+
+def test_shared_points_pick_every_other_step_point():
+    # Two segments; a segment's block is its start, then its steps + 1 step points.
+    n = 3
+    fine = np.concatenate([[0.0], np.linspace(0.0, 1.0, 2 * n + 1)])
+    fine = np.concatenate([fine, 1.0 + fine])
+    coarse = np.concatenate([[0.0], np.linspace(0.0, 1.0, n + 1)])
+    coarse = np.concatenate([coarse, 1.0 + coarse])
+    idx = _shared_points(fine.size, n)
+    assert idx.shape == coarse.shape
+    np.testing.assert_array_equal(fine[idx], coarse)
+
+
+def test_verdicts_follow_the_observed_order():
+    ok = _check(5.2)
+    assert ok.asymptotic and ok.reliable and ok.resolved
+    assert "observed order 5.2 (method: 5)" in ok.message and "Resolved" in ok.message
+    # Converging faster than the order (before the asymptotic range): an upper bound.
+    fast = _check(8.0)
+    assert not fast.asymptotic and fast.reliable and fast.resolved
+    assert "upper bound" in fast.message
+    # Slower: the estimate is too small to trust, however small it is.
+    slow = _check(3.5)
+    assert not slow.reliable and not slow.resolved
+    assert "Use at least 40 steps" in slow.message
+    # Agreement to the solver tolerance: no order, the estimate stands.
+    flat = _check(float("nan"))
+    assert flat.asymptotic and flat.reliable and flat.resolved
+    assert "solver tolerance" in flat.message
+    big = _check(5.0, rel=1e-4, suggested=25)
+    assert big.reliable and not big.resolved and "about 25 steps" in big.message
+
+
+def test_fewer_suggested_steps_ask_for_a_second_check():
+    msg = _check(5.0, rel=1e-9, suggested=3).message
+    assert "as few as 3 steps may do (check again at 3" in msg
+
+
+def test_a_failed_solve_gives_no_estimate():
+    sols = tuple(types.SimpleNamespace(status=x) for x in ("converged", "beyond_limit_load", "x"))
+    nan = float("nan")
+    failed = _check(nan, rel=nan, status="beyond_limit_load", solutions=sols)
+    assert not failed.reliable and not failed.resolved
+    assert failed.message.startswith("a solve at 20 steps per segment ended beyond_limit_load")
+
+
+def test_to_dict_is_json_ready():
+    d = _check(float("nan")).to_dict()
+    assert "solutions" not in d
+    text = json.dumps(d, allow_nan=False)  # NaN written as null
+    back = json.loads(text)
+    assert back["observed_order"] is None and back["steps"] == [10, 20, 40]
+    assert back["resolved"] is True and back["message"] == _check(float("nan")).message
+
+
+@pytest.mark.parametrize("rtol", [0.0, 1.0, -1e-6, float("nan"), "1e-6", True])
+def test_bad_rtol_is_named(rtol):
+    with pytest.raises(ValueError, match="rtol must be a number in \\(0, 1\\)"):
+        check_resolution(fr.ref_finger_a("L1"), rtol=rtol)
+
+
+def test_a_solution_of_other_settings_is_refused():
+    other = types.SimpleNamespace(steps=5, mode="planar")
+    with pytest.raises(ValueError, match="solved planar at 5 steps per segment"):
+        check_resolution(fr.ref_finger_a("L1"), mode="planar", solution=other)
+
+
+def test_bad_finger_is_refused():
+    with pytest.raises(TypeError, match="expected a Finger"):
+        check_resolution("finger.toml")
+
+
+@pytest.mark.slow
+def test_estimate_matches_the_error_against_a_fine_solve():
+    """ref-A L2 (82 % of its limit load) at 10 steps: the estimated tip error agrees with
+    the error against an 80-step solve, and the suggested steps meet rtol there."""
+    finger = fr.ref_finger_a("L2")
+    check = check_resolution(finger, mode="planar", rtol=1e-6)
+    assert check.status == "converged" and check.steps == (10, 20, 40)
+    assert 4.0 <= check.observed_order <= 7.0
+    fine = fr.solve_finger(finger, mode="planar", integrator=fr.Integrator(steps=80))
+    tip = lambda s: np.asarray(s.tip.displacement)
+    size = np.linalg.norm(tip(fine))
+    true = np.linalg.norm(tip(check.solutions[0]) - tip(fine)) / size
+    assert math.isclose(check.tip_relative_error, true, rel_tol=0.15), (check, true)
+    assert true > 1e-6 and not check.resolved  # 10 steps are not enough for 1e-6 here
+    m = check.suggested_steps
+    assert 10 < m < 20
+    at_m = fr.solve_finger(finger, mode="planar", integrator=fr.Integrator(steps=m))
+    assert np.linalg.norm(tip(at_m) - tip(fine)) / size <= 1e-6
+    # A looser rtol is met at 10 steps.
+    loose = check_resolution(finger, mode="planar", rtol=1e-5, solution=check.solutions[0])
+    assert loose.resolved and loose.suggested_steps <= 10
+
+
+@pytest.mark.slow
+def test_cli_solve_check_resolution(tmp_path):
+    from test_cli import REF_A, run
+
+    path = tmp_path / "r.json"
+    code, out, err = run(["solve", REF_A, "--check-resolution", "--out", str(path)])
+    assert code == 0, out + err
+    assert "resolution: 10 steps per segment: tip error about" in out
+    res = json.loads(path.read_text())["resolution"]
+    assert res["steps"] == [10, 20, 40] and res["status"] == "converged"
+    assert res["resolved"] is True and res["tip_relative_error"] < 1e-6
