@@ -18,7 +18,10 @@ Gradient cost: `jax.value_and_grad` and `jax.jacfwd` of tip dx with respect to 1
 values against the forward solve alone, all jitted through `solve_finger(...,
 topology=...)`.
 
-Run:  taskset -c 0 .venv/bin/python benchmarks/batch.py [--quick]
+With --resolutions, instead: 64 designs at 10, 5, 4 and 3 steps per segment (interleaved
+rounds) beside the resolution check of each count (`finray_jax.check_resolution`).
+
+Run:  taskset -c 0 .venv/bin/python benchmarks/batch.py [--quick | --resolutions]
 """
 
 import argparse
@@ -96,6 +99,48 @@ def _direct_tip(finger):
     return sol.tip.displacement[0]
 
 
+def bench_resolutions(n, step_counts, rounds):
+    """Batch throughput (n designs, one chunk, one after another, cold) at several steps
+    per segment, timed in interleaved rounds, beside each count's resolution check on the
+    base finger (`check_resolution`: the estimated relative tip error)."""
+    values = designs(n)
+    runs = {}
+    for k in step_counts:
+        integ = fr.Integrator(steps=k)
+        runs[k] = functools.partial(
+            solve_batch,
+            BASE,
+            values,
+            ["tip.dx"],
+            chunk_size=n,
+            vectorize=False,
+            topology=TOPO,
+            integrator=integ,
+        )
+        res = runs[k]()  # compile
+        assert np.all(res.status == "converged"), k
+    times = {k: [] for k in step_counts}
+    for _ in range(rounds):
+        for k in step_counts:
+            times[k].append(median_time(runs[k], 5, 0.0)[0])
+    out = []
+    for k in step_counts:
+        check = fr.check_resolution(BASE, mode="planar", integrator=fr.Integrator(steps=k))
+        t = float(np.median(times[k]))
+        out.append(
+            {
+                "steps": k,
+                "ms_per_design": 1e3 * t / n,
+                "designs_per_s": n / t,
+                "designs_per_s_by_round": [n / x for x in times[k]],
+                "tip_relative_error": check.tip_relative_error,
+                "observed_order": check.to_dict()["observed_order"],  # None: at noise
+                "reliable": check.reliable,
+            }
+        )
+    return out
+
+
 def bench_loop(n):
     values = designs(n, seed=1)
     fingers = [design.set_design(BASE, {k: v[i] for k, v in values.items()}) for i in range(n)]
@@ -130,8 +175,27 @@ def bench_gradient(repeats):
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="batch sizes 1 and 16 only")
+    ap.add_argument(
+        "--resolutions",
+        action="store_true",
+        help="only: throughput of 64 designs at 10, 5, 4 and 3 steps per segment, with the "
+        "resolution check of each (results/batch_resolution.json)",
+    )
     args = ap.parse_args()
     cores = pin_to_one_core()
+    if args.resolutions:
+        rows = bench_resolutions(64, (10, 5, 4, 3), rounds=3)
+        for r in rows:
+            print(
+                f"{r['steps']:2d} steps per segment: {r['ms_per_design']:.3f} ms/design, "
+                f"{r['designs_per_s']:.0f} designs/s (rounds "
+                + ", ".join(f"{x:.0f}" for x in r["designs_per_s_by_round"])
+                + f"); estimated tip error {r['tip_relative_error']:.1e} (relative)",
+                flush=True,
+            )
+        meta = {"pinned_cores": cores, "machine": machine(), "finger": "ref-A L1, planar"}
+        print(f"wrote {write('batch_resolution', {**meta, 'rows': rows})}")
+        return
     sizes = (1, 16) if args.quick else (1, 16, 64, 256, 1024)
     rows = []
     cases = [(v, n, False) for v in (True, False) for n in sizes]
