@@ -24,6 +24,7 @@ import math
 import numpy as np
 
 from ._finger import Finger
+from ._geometry import geometry
 from ._rod import Integrator
 from ._solution import Solution
 from ._solve import SolverOptions, prepare, solve_finger
@@ -174,6 +175,21 @@ def _differences(coarse: Solution, fine: Solution, n: int):
     return float(tip), shape, reaction
 
 
+def _order(integrator: Integrator) -> int:
+    try:
+        p = integrator.solver.order(None)
+    except Exception as e:  # a solver whose order depends on its terms
+        raise ValueError(
+            f"check_resolution: cannot tell the order of {type(integrator.solver).__name__} "
+            f"({e}); use an explicit Runge-Kutta solver such as Tsit5"
+        ) from None
+    if not isinstance(p, (int, np.integer)) or p < 1:
+        raise ValueError(
+            f"check_resolution: {type(integrator.solver).__name__} has no fixed order ({p!r})"
+        )
+    return int(p)
+
+
 def check_resolution(
     finger: Finger,
     *,
@@ -193,6 +209,7 @@ def check_resolution(
     if not isinstance(rtol, (int, float)) or not (0.0 < rtol < 1.0):
         raise ValueError(f"rtol must be a number in (0, 1), got {rtol!r}")
     topo = prepare(finger, mode)  # validates the finger; all three share the topology
+    p = _order(integrator)
     n = integrator.steps
     if solution is not None and (solution.steps != n or solution.mode != topo.mode):
         raise ValueError(
@@ -206,7 +223,6 @@ def check_resolution(
             continue
         integ = dataclasses.replace(integrator, steps=k * n)
         sols.append(solve_finger(finger, integrator=integ, options=options, topology=topo))
-    p = int(integrator.solver.order(None))
     nan = float("nan")
     failed = next((s.status for s in sols if s.status != "converged"), None)
     if failed is not None:
@@ -218,11 +234,14 @@ def check_resolution(
         _differences(sols[0], sols[1], n),
         _differences(sols[1], sols[2], 2 * n),
     )
+    # The tip's displacement sets the scale; below 1e-9 of the front beam's length it is
+    # none (an unloaded finger), and that length stands in.
     size = float(np.linalg.norm(np.asarray(sols[2].tip.displacement)))
-    floor = NOISE * max(size, 1e-300)
+    size = max(size, NOISE * float(geometry(finger).L))
+    floor = NOISE * size
     observed = math.log2(tip1 / tip2) if tip2 > floor and tip1 > 0.0 else nan
     gain = 2.0**p / (2.0**p - 1.0)  # e(n) = (y_n - y_2n) 2^p / (2^p - 1)
-    tip_err, rel = gain * tip1, gain * tip1 / max(size, 1e-300)
+    tip_err, rel = gain * tip1, gain * tip1 / size
     if observed < p - 1.0:  # (False for NaN) the estimate cannot be trusted
         suggested = 4 * n
     else:  # e(m) = e(n) (n / m)^p; below the noise the estimate is an upper bound

@@ -137,3 +137,23 @@ def test_cli_solve_check_resolution(tmp_path):
     res = json.loads(path.read_text())["resolution"]
     assert res["steps"] == [10, 20, 40] and res["status"] == "converged"
     assert res["resolved"] is True and res["tip_relative_error"] < 1e-6
+
+
+def test_a_solver_without_a_fixed_order_is_refused():
+    class NoOrder:
+        def order(self, terms):
+            raise NotImplementedError("order depends on the terms")
+
+    integ = types.SimpleNamespace(solver=NoOrder(), steps=10)
+    with pytest.raises(ValueError, match="cannot tell the order of NoOrder"):
+        check_resolution(fr.ref_finger_a("L1"), integrator=integ)
+
+
+@pytest.mark.slow
+def test_an_unloaded_finger_is_resolved():
+    """No load, no displacement: the differences are round-off, measured against the
+    front beam's length instead of a zero tip displacement."""
+    check = check_resolution(fr.ref_finger_a("L1").scale_loads(0.0), mode="planar")
+    assert check.status == "converged"
+    assert math.isnan(check.observed_order) and check.resolved
+    assert check.tip_relative_error < 1e-6 and check.tip_error < 1e-9
