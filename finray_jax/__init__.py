@@ -53,6 +53,7 @@ from .batch import solve_batch as solve_batch
 from .design import get_design as get_design
 from .design import set_design as set_design
 from .resolution import ResolutionCheck as ResolutionCheck
+from .resolution import check_grasp_resolution as check_grasp_resolution
 from .resolution import check_resolution as check_resolution
 
 __version__ = "0.1.0"

@@ -144,16 +144,7 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="override [solver] mode (default: the file's, else auto)",
     )
-    s.add_argument(
-        "--check-resolution",
-        nargs="?",
-        const=1e-6,
-        default=None,
-        type=_finite_float,
-        metavar="RTOL",
-        help="also solve at 2x and 4x the steps per segment and estimate the integration "
-        "error (relative tip error that counts as resolved: RTOL, default 1e-6)",
-    )
+    _add_check_resolution(s, "the tip displacement")
 
     lim = sub.add_parser(
         "limit",
@@ -205,6 +196,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="MU",
         help="friction coefficient for the release trace (default: [contact])",
     )
+    _add_check_resolution(gr, "the contact normal force")
 
     cmp_ = sub.add_parser(
         "compare",
@@ -359,6 +351,26 @@ def _solve(finger, settings, mode):
     return sol, time.perf_counter() - t0
 
 
+def _add_check_resolution(parser, what):
+    parser.add_argument(
+        "--check-resolution",
+        nargs="?",
+        const=1e-6,
+        default=None,
+        type=_finite_float,
+        metavar="RTOL",
+        help="also solve at 2x and 4x the steps per segment and estimate the integration "
+        f"error (the relative error of {what} that counts as resolved: RTOL, default 1e-6)",
+    )
+
+
+def _resolution_rtol(args):
+    rtol = args.check_resolution
+    if rtol is not None and not 0.0 < rtol < 1.0:
+        raise UserError(f"--check-resolution: RTOL must lie in (0, 1), got {rtol:g}")
+    return rtol
+
+
 def _check_resolution(finger, settings, sol, rtol):
     """The step-doubling check of a converged solve (None when not asked for)."""
     if rtol is None:
@@ -377,9 +389,7 @@ def _check_resolution(finger, settings, sol, rtol):
 
 
 def _cmd_solve(args) -> int:
-    rtol = args.check_resolution
-    if rtol is not None and not 0.0 < rtol < 1.0:
-        raise UserError(f"--check-resolution: RTOL must lie in (0, 1), got {rtol:g}")
+    rtol = _resolution_rtol(args)
     finger, settings = fio.load_finger(args.finger)
     if args.load_scale is not None:
         finger = finger.scale_loads(args.load_scale)
@@ -644,6 +654,7 @@ def _grasp_lines(g, name="") -> list[str]:
 
 
 def _cmd_grasp(args) -> int:
+    rtol = _resolution_rtol(args)
     finger, settings = fio.load_finger(args.finger)
     if settings.grasp is None:
         raise UserError(f"{args.finger} has no [grasp] table (closing or actuator_force)")
@@ -659,8 +670,17 @@ def _cmd_grasp(args) -> int:
             f"  holding force     {_f(trace.peak)} N at pull {_f(trace.peak_pull)} mm "
             f"({trace.message})"
         )
+    check = None
+    if rtol is not None and g.converged:
+        n = g.integrator.steps
+        print(f"resolution: solving at {2 * n} and {4 * n} steps per segment ...")
+        check = fr.check_grasp_resolution(g, rtol=rtol)
+        print(f"resolution: {check.message}")
     if args.out:
-        fio.write_json(args.out, _grasp_dict(g, trace))
+        out = _grasp_dict(g, trace)
+        if check is not None:
+            out["resolution"] = check.to_dict()
+        fio.write_json(args.out, out)
         print(f"wrote {args.out}")
     if args.plot:
         from .plot import grasp_figure, save_figure

@@ -46,6 +46,20 @@ def test_grasp_file_errors_name_the_key(tmp_path):
     nograsp.write_text(text.split("[grasp]")[0])
     code, _, err = run(["grasp", str(nograsp)])
     assert code == 1 and "no [grasp] table" in err
+    code, _, err = run(["grasp", GRASP, "--check-resolution", "1.5"])
+    assert code == 1 and "RTOL must lie in (0, 1), got 1.5" in err
+
+
+@pytest.mark.slow
+def test_grasp_check_resolution(tmp_path):
+    out = tmp_path / "g.json"
+    code, stdout, err = run(["grasp", GRASP, "--check-resolution", "1e-3", "--out", str(out)])
+    assert code == 0, err
+    assert "resolution: solving at 32 and 64 steps per segment" in stdout
+    res = json.loads(out.read_text())["resolution"]
+    assert res["quantity"] == "normal_force" and res["order"] == 2
+    assert res["steps"] == [16, 32, 64] and res["status"] == "converged"
+    assert 0.0 < res["normal_force_relative_error"] < 1e-3 and res["resolved"] is True
 
 
 @pytest.mark.slow

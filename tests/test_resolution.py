@@ -7,24 +7,33 @@ estimate against the error measured against an independent fine solve.
 
 import json
 import math
+import pathlib
 import types
 
 import numpy as np
 import pytest
 
 import finray_jax as fr
-from finray_jax.resolution import ResolutionCheck, _shared_points, check_resolution
+from finray_jax.resolution import (
+    ResolutionCheck,
+    _shared_points,
+    check_grasp_resolution,
+    check_resolution,
+)
 
 
 def _check(observed, rel=1e-7, status="converged", suggested=6, solutions=(None, None, None)):
     return ResolutionCheck(
         steps=(10, 20, 40),
+        quantity="tip",
         order=5,
         observed_order=observed,
         tip_error=rel * 20.0,
         tip_relative_error=rel,
         shape_error=2.0 * rel * 20.0,
         reaction_error=1e-8,
+        normal_force_error=float("nan"),
+        normal_force_relative_error=float("nan"),
         suggested_steps=suggested,
         rtol=1e-6,
         status=status,
@@ -47,7 +56,8 @@ def test_shared_points_pick_every_other_step_point():
 def test_verdicts_follow_the_observed_order():
     ok = _check(5.2)
     assert ok.asymptotic and ok.reliable and ok.resolved
-    assert "observed order 5.2 (method: 5)" in ok.message and "Resolved" in ok.message
+    assert "tip: observed order 5.2 (expected 5)" in ok.message
+    assert "Resolved (tip) to rtol 1e-06" in ok.message
     # Converging faster than the order (before the asymptotic range): an upper bound.
     fast = _check(8.0)
     assert not fast.asymptotic and fast.reliable and fast.resolved
@@ -101,6 +111,8 @@ def test_a_solution_of_other_settings_is_refused():
 def test_bad_finger_is_refused():
     with pytest.raises(TypeError, match="expected a Finger"):
         check_resolution("finger.toml")
+    with pytest.raises(TypeError, match="expected a GraspSolution"):
+        check_grasp_resolution(fr.ref_finger_a("L1"))
 
 
 @pytest.mark.slow
@@ -157,3 +169,33 @@ def test_an_unloaded_finger_is_resolved():
     assert check.status == "converged"
     assert math.isnan(check.observed_order) and check.resolved
     assert check.tip_relative_error < 1e-6 and check.tip_error < 1e-9
+
+
+@pytest.mark.slow
+def test_grasp_normal_force_estimate_against_a_fine_solve():
+    """Finger-1 closed 5 mm on its cylinder, 16 steps: with contact the check assumes
+    order 2, and its normal-force estimate agrees with the change to a 128-step solve."""
+    import dataclasses
+
+    from finray_jax import io as fio
+    from finray_jax._grasp import _with_stiffness, contact_result
+    from finray_jax._solve import _direct_core
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    finger, _ = fio.load_finger(str(root / "examples" / "grasp_finger1.toml"))
+    g = fr.grasp(finger, 5.0)
+    check = check_grasp_resolution(g)
+    assert check.status == "converged" and check.quantity == "normal_force"
+    assert check.order == 2 and check.steps == (16, 32, 64)
+    assert check.reliable
+    moved = _with_stiffness(g.finger, g.stiffness)
+    integ = dataclasses.replace(g.integrator, steps=128)
+    fine, _, _ = _direct_core(
+        g.topology, integ, fr.SolverOptions(), moved, g.solution.unknowns, np.float64(0.0)
+    )
+    assert fine.status == "converged"
+    f128 = float(contact_result(moved, fine, np.asarray(g.direction)).normal_force)
+    true = abs(float(g.contact.normal_force) - f128)
+    assert 0.5 * true <= check.normal_force_error <= 2.0 * true, (check, true)
+    assert check.relative_error == check.normal_force_relative_error
+    assert "contact normal force" in check.message
