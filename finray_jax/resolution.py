@@ -222,13 +222,16 @@ def check_resolution(
     """Estimate the integration error of solving `finger` at `integrator.steps` steps per
     segment, by solving it at 2 and 4 times as many (each a new compile the first time).
 
-    rtol: the relative tip error that counts as resolved (and that `suggested_steps`
-        aims at). solution: an existing solve of this finger at `integrator.steps`, reused
-        as the first of the three.
+    With objects or a support (contact) the estimate assumes order 2, as
+    `check_grasp_resolution` does. rtol: the relative tip error that counts as resolved
+    (and that `suggested_steps` aims at). solution: an existing solve of this finger at
+    `integrator.steps`, reused as the first of the three.
     """
     _check_rtol(rtol)
     topo = prepare(finger, mode)  # validates the finger; all three share the topology
     p = _order(integrator)
+    if topo.contact is not None:  # objects or a support: the C1 penalty limits the order
+        p = min(p, CONTACT_ORDER)
     n = integrator.steps
     if solution is not None and (solution.steps != n or solution.mode != topo.mode):
         raise ValueError(

@@ -199,3 +199,14 @@ def test_grasp_normal_force_estimate_against_a_fine_solve():
     assert 0.5 * true <= check.normal_force_error <= 2.0 * true, (check, true)
     assert check.relative_error == check.normal_force_relative_error
     assert "contact normal force" in check.message
+
+
+@pytest.mark.slow
+def test_contact_lowers_the_assumed_order():
+    """A finger with a support (contact) is checked at order 2, not Tsit5's 5."""
+    from finray_jax.studies import MODIFIED, with_adaptor
+
+    finger = with_adaptor(fr.ref_finger_a("L1"), MODIFIED)
+    check = check_resolution(finger, mode="planar", integrator=fr.Integrator(steps=8))
+    assert check.status == "converged" and check.order == 2 and check.quantity == "tip"
+    assert check.steps == (8, 16, 32)
