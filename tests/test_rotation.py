@@ -113,3 +113,25 @@ def test_planar_frame_convention(theta):
     # It is the exponential of theta about +y, and planar_angle recovers theta from d3.
     np.testing.assert_allclose(R, np.asarray(exp_so3(jnp.asarray([0.0, theta, 0.0]))), atol=EXACT)
     assert abs(float(planar_angle(jnp.asarray([d3[0], d3[2]]))) - theta) < EXACT
+
+
+@pytest.mark.parametrize("v", VECTORS[:3])
+def test_spatial_step_pulls_the_frame_back_to_so3(v):
+    """SpatialRod.after_step: one Newton-Schulz step of the polar factor squares the drift
+    from SO(3), moves R by no more than the drift, and leaves p, n, m alone."""
+    from finray_jax._rod import SpatialRod
+
+    R = np.asarray(exp_so3(jnp.asarray(v)))
+    drift = 1e-5 * RNG.normal(size=(3, 3))
+    rest = RNG.normal(size=9)
+    y = jnp.concatenate(
+        [jnp.asarray(rest[:3]), jnp.asarray(R + drift).reshape(9), jnp.asarray(rest[3:])]
+    )
+    out = np.asarray(SpatialRod.after_step(y, y))
+    Rn = out[3:12].reshape(3, 3)
+    before = np.abs((R + drift).T @ (R + drift) - np.eye(3)).max()
+    after = np.abs(Rn.T @ Rn - np.eye(3)).max()
+    assert before > 1e-6 and after < 10 * before**2
+    assert np.abs(Rn - (R + drift)).max() < 2 * before
+    np.testing.assert_array_equal(out[:3], rest[:3])
+    np.testing.assert_array_equal(out[12:], rest[3:])
