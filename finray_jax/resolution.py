@@ -286,7 +286,7 @@ def _check_rtol(rtol):
         raise ValueError(f"rtol must be a number in (0, 1), got {rtol!r}")
 
 
-def _richardson(values, n: int, p: int, scale: float):
+def _richardson(values, p: int, scale: float):
     """Estimated absolute and relative error (over `scale`) of values[0], and the observed
     order; values: at n, 2n and 4n steps."""
     d1 = float(np.linalg.norm(np.asarray(values[0]) - np.asarray(values[1])))
@@ -311,12 +311,12 @@ def _estimate(sols, n: int, p: int, rtol: float, length: float, normals=None) ->
     # The tip's displacement sets its scale; below 1e-9 of the front beam's length it is
     # none (an unloaded finger), and that length stands in.
     tip_scale = max(float(np.linalg.norm(tips[2])), NOISE * length)
-    tip_err, tip_rel, observed = _richardson(tips, n, p, tip_scale)
+    tip_err, tip_rel, observed = _richardson(tips, p, tip_scale)
     force_err = force_rel = nan
     rel = tip_rel
     if normals is not None:
         force_scale = max(abs(normals[2]), 1e-300)
-        force_err, force_rel, observed = _richardson(normals, n, p, force_scale)
+        force_err, force_rel, observed = _richardson(normals, p, force_scale)
         rel = force_rel
     if observed < p - 1.0:  # (False for NaN) the estimate cannot be trusted
         suggested = 4 * n

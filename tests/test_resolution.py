@@ -219,3 +219,62 @@ def test_spatial_l2_is_as_resolved_as_planar():
     check = check_resolution(fr.ref_finger_a("L2"), mode="spatial")
     assert check.status == "converged" and check.reliable
     assert check.tip_relative_error < 2e-5, check
+
+
+def _manufactured(n, error, p=5):
+    """A stand-in Solution at n steps whose outputs are off by error * n^-p: one segment
+    per main beam, its step points where a real solve puts them."""
+    from finray_jax._solution import BeamSolution
+
+    e = error * float(n) ** -p
+    s = np.concatenate([[0.0], np.linspace(0.0, 50.0, n + 1)])
+    pos = np.stack([np.sin(s / 50.0), np.zeros_like(s), s], axis=1) + e
+    beam = BeamSolution.pack(
+        np.asarray(s), pos, np.broadcast_to(np.eye(3), (s.size, 3, 3)), 0 * pos, 0 * pos
+    )
+    wrench = types.SimpleNamespace(force=np.array([1.0, 0.0, -2.0]) + e)
+    return types.SimpleNamespace(
+        status="converged",
+        tip=types.SimpleNamespace(displacement=np.array([3.0, 0.0, 4.0]) + e),
+        front=beam,
+        back=beam,
+        reactions_front=wrench,
+        reactions_back=wrench,
+    )
+
+
+def test_richardson_recovers_a_manufactured_error():
+    """Outputs off by C n^-5: the estimate is exactly C n^-5 (times sqrt 3 for the three
+    components), the observed order 5, and the suggested steps meet rtol."""
+    from finray_jax.resolution import _estimate
+
+    n, C = 4, 0.5
+    sols = [_manufactured(k * n, C) for k in (1, 2, 4)]
+    check = _estimate(sols, n, 5, 1e-6, 100.0)
+    true = C * n**-5.0 * math.sqrt(3.0)
+    size = float(np.linalg.norm(sols[2].tip.displacement))  # the finest tip's size
+    assert math.isclose(check.tip_error, true, rel_tol=1e-9)
+    assert math.isclose(check.tip_relative_error, true / size, rel_tol=1e-9)
+    assert math.isclose(check.shape_error, true, rel_tol=1e-9)
+    assert math.isclose(check.reaction_error, true, rel_tol=1e-9)
+    assert math.isclose(check.observed_order, 5.0, rel_tol=1e-9)
+    assert check.asymptotic and check.reliable and not check.resolved
+    m = check.suggested_steps
+    rel = lambda k: C * k**-5.0 * math.sqrt(3.0) / size
+    assert rel(m) <= 1e-6 < rel(m - 1)
+    # A grasp: the normal force decides.
+    forces = [2.0 + 0.1 * (k * n) ** -5.0 for k in (1, 2, 4)]
+    grasp = _estimate(sols, n, 5, 1e-6, 100.0, forces)
+    assert grasp.quantity == "normal_force"
+    assert math.isclose(grasp.normal_force_error, 0.1 * n**-5.0, rel_tol=1e-9)
+    assert grasp.relative_error == grasp.normal_force_relative_error
+
+
+def test_a_failed_member_is_reported():
+    from finray_jax.resolution import _estimate
+
+    sols = [_manufactured(k * 4, 0.5) for k in (1, 2, 4)]
+    sols[2].status = "failed"
+    check = _estimate(sols, 4, 5, 1e-6, 100.0)
+    assert check.status == "failed" and math.isnan(check.tip_error) and not check.resolved
+    assert check.message.startswith("a solve at 16 steps per segment ended failed")
