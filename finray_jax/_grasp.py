@@ -452,14 +452,20 @@ def regrasp(g: GraspSolution, finger: Finger, closing=None, *, options=SolverOpt
     for designs near g's). Returns (Solution, ContactResult); check `Solution.result`.
     The penalty stiffness is g's."""
     closing = g.closing if closing is None else closing
-    w = jnp.asarray(g.direction)
-    moved = _with_stiffness(_moved(finger, -closing * w), g.stiffness)
+    moved = _moved(finger, -closing * jnp.asarray(g.direction))
+    return _resolve_near(g, moved, g.integrator, options)
+
+
+def _resolve_near(g: GraspSolution, moved: Finger, integrator, options):
+    """The equilibrium of `moved` (objects where they are at the closing) with g's penalty
+    stiffness, segment cuts and start: (Solution, ContactResult)."""
+    moved = _with_stiffness(moved, g.stiffness)
     # ref_sign 0 (the sign at g's equilibrium), passed as the stepper passes it: an f64
     # array, so this call reuses the grasp's compiled program
     sol, _, _ = _direct_core(
-        g.topology, g.integrator, options, moved, g.solution.unknowns, np.float64(0.0)
+        g.topology, integrator, options, moved, g.solution.unknowns, np.float64(0.0)
     )
-    return sol, contact_result(moved, sol, w)
+    return sol, contact_result(moved, sol, jnp.asarray(g.direction))
 
 
 def _find_closing(stepper, at, w, target):

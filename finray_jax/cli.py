@@ -378,12 +378,16 @@ def _check_resolution(finger, settings, sol, rtol):
     if sol.status != "converged":
         print("resolution: not checked (the solve did not converge)")
         return None
-    from .resolution import check_resolution
-
-    print(f"resolution: solving at {2 * sol.steps} and {4 * sol.steps} steps per segment ...")
     kwargs = settings.solve_kwargs()
     kwargs["mode"] = sol.mode
-    check = check_resolution(finger, rtol=rtol, solution=sol, **kwargs)
+    run = lambda: fr.check_resolution(finger, rtol=rtol, solution=sol, **kwargs)
+    return _report_resolution(sol.steps, run)
+
+
+def _report_resolution(n, run):
+    """Announce the solves at 2n and 4n steps, run the check, print its verdict."""
+    print(f"resolution: solving at {2 * n} and {4 * n} steps per segment ...")
+    check = run()
     print(f"resolution: {check.message}")
     return check
 
@@ -672,10 +676,8 @@ def _cmd_grasp(args) -> int:
         )
     check = None
     if rtol is not None and g.converged:
-        n = g.integrator.steps
-        print(f"resolution: solving at {2 * n} and {4 * n} steps per segment ...")
-        check = fr.check_grasp_resolution(g, rtol=rtol)
-        print(f"resolution: {check.message}")
+        run = lambda: fr.check_grasp_resolution(g, rtol=rtol)
+        check = _report_resolution(g.integrator.steps, run)
     if args.out:
         out = _grasp_dict(g, trace)
         if check is not None:

@@ -22,15 +22,14 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import jax.numpy as jnp
 import numpy as np
 
 from ._finger import Finger
 from ._geometry import geometry
-from ._grasp import GraspSolution, _with_stiffness, contact_result
+from ._grasp import GraspSolution, _resolve_near
 from ._rod import Integrator
 from ._solution import Solution
-from ._solve import SolverOptions, _direct_core, prepare, solve_finger
+from ._solve import SolverOptions, prepare, solve_finger
 
 __all__ = ["ResolutionCheck", "check_grasp_resolution", "check_resolution"]
 
@@ -153,14 +152,15 @@ class ResolutionCheck:
 
     def to_dict(self) -> dict:
         """Plain values (JSON-ready), the solutions left out."""
+        from .io import _plain  # (NaN -> None, tuples -> lists)
+
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         del out["solutions"]
-        out["steps"] = list(self.steps)
         out["asymptotic"] = self.asymptotic
         out["reliable"] = self.reliable
         out["resolved"] = self.resolved
         out["message"] = self.message
-        return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}
+        return _plain(out)
 
 
 def _shared_points(fine_len: int, n: int) -> np.ndarray:
@@ -269,16 +269,13 @@ def check_grasp_resolution(
         raise ValueError(f"the grasp did not converge ({g.status}): nothing to check")
     p = min(_order(g.integrator), CONTACT_ORDER)
     n = g.integrator.steps
-    w = jnp.asarray(g.direction)
-    finger = _with_stiffness(g.finger, g.stiffness)
     sols, normals = [g.solution], [float(g.contact.normal_force)]
     for k in (2, 4):
         integ = dataclasses.replace(g.integrator, steps=k * n)
-        start = g.solution.unknowns
-        sol, _, _ = _direct_core(g.topology, integ, options, finger, start, np.float64(0.0))
+        sol, contact = _resolve_near(g, g.finger, integ, options)
         sols.append(sol)
-        normals.append(float(contact_result(finger, sol, w).normal_force))
-    return _estimate(sols, n, p, rtol, float(geometry(finger).L), normals)
+        normals.append(float(contact.normal_force))
+    return _estimate(sols, n, p, rtol, float(geometry(g.finger).L), normals)
 
 
 def _check_rtol(rtol):
