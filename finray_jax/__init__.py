@@ -10,6 +10,7 @@ if _os.environ.get("FINRAY_NO_AUTO_X64", "0") != "1":
 from ._cantilever import CantileverSolution as CantileverSolution
 from ._cantilever import solve_cantilever as solve_cantilever
 from ._contact import Contact as Contact
+from ._contact import with_friction as with_friction
 from ._finger import Adaptor as Adaptor
 from ._finger import Crossbeams as Crossbeams
 from ._finger import DistributedLoad as DistributedLoad

@@ -27,8 +27,9 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from ._objects import distance_by_key, param_size
+from ._objects import kind_by_key, param_size
 from ._types import as_float
 
 N_SEGMENT = 4  # per-segment contact columns: object flag, support flag, h at start, h at end
@@ -64,11 +65,18 @@ class Contact(eqx.Module):
 
 @dataclasses.dataclass(frozen=True)
 class ContactSpec:
-    """Static layout of the contact parameters: object keys and whether there is a
-    support."""
+    """Static layout of the contact parameters: object keys, whether there is a support,
+    and whether friction can act.
+
+    friction: False when the finger's friction is known to vanish (mu = 0, or no slip
+    direction, as while closing). The rhs then leaves the friction law out, a third of
+    the cost of a contact problem's segment Jacobians. A finger whose friction may act
+    (concretely non-zero, or traced) needs a topology with friction (`check_friction`).
+    """
 
     objects: tuple = ()
     support: bool = False
+    friction: bool = True
 
     @property
     def sizes(self):
@@ -79,12 +87,61 @@ class ContactSpec:
         return N_SEGMENT + N_GLOBAL + sum(self.sizes)
 
 
+def _concrete(x):
+    """x as a NumPy array, or None when it is traced (it may then be anything)."""
+    try:
+        return np.asarray(x)
+    except jax.errors.TracerArrayConversionError:
+        return None
+
+
+def _friction_acts(contact: "Contact"):
+    """Whether friction acts (mu > 0 and a slip direction): True, False, or None when a
+    traced value leaves it open."""
+    mu, w = _concrete(contact.friction), _concrete(contact.slip_direction)
+    if (mu is not None and not np.any(mu)) or (w is not None and not np.any(w)):
+        return False
+    return None if mu is None or w is None else True
+
+
+def friction_may_act(contact: "Contact") -> bool:
+    return _friction_acts(contact) is not False
+
+
 def contact_spec(finger):
     """The static contact layout of a finger (None without objects or support)."""
     support = finger.adaptor.support_length is not None
     if not finger.objects and not support:
         return None
-    return ContactSpec(tuple(o.key() for o in finger.objects), support)
+    objects = tuple(o.key() for o in finger.objects)
+    return ContactSpec(objects, support, friction_may_act(finger.contact))
+
+
+def check_friction(spec: ContactSpec | None, finger):
+    """Raise when a topology without friction meets a finger whose friction acts. (Under
+    a trace, where the friction is not known, the topology is trusted: a traced finger
+    with friction needs `with_friction(topology)` or a topology built with friction.)"""
+    from ._finger import FingerError
+
+    if spec is None or spec.friction or not _friction_acts(finger.contact):
+        return
+    c = finger.contact
+    raise FingerError(
+        "the topology was built for frictionless contact (contact.friction = 0 or no "
+        f"slip_direction), but this finger has contact.friction = {np.asarray(c.friction)} "
+        f"and contact.slip_direction = {np.asarray(c.slip_direction).tolist()}: pass "
+        "finray_jax.with_friction(topology), or finray_jax.topology_of(this finger)"
+    )
+
+
+def with_friction(topology):
+    """The same topology with the friction law in the rhs (for fingers whose friction
+    may act: concretely non-zero, or traced)."""
+    if topology.contact is None or topology.contact.friction:
+        return topology
+    return dataclasses.replace(
+        topology, contact=dataclasses.replace(topology.contact, friction=True)
+    )
 
 
 def penalty(g, k, delta):
@@ -129,40 +186,45 @@ def global_params(finger, geo):
     return jnp.concatenate([head] + objects)
 
 
-def _object_distances(spec: ContactSpec, objects_flat, p):
+def _object_params(spec: ContactSpec, objects_flat):
+    """(object class, its parameter slice) of every object."""
     out, i = [], 0
     for key, n in zip(spec.objects, spec.sizes):
-        out.append((distance_by_key(key), objects_flat[i : i + n]))
+        out.append((kind_by_key(key), objects_flat[i : i + n]))
         i += n
     return out
 
 
-def contact_load(spec: ContactSpec, q, p, t, tau):
+def contact_load(spec: ContactSpec, q, x, z, tx, tz, tau):
     """Contact force per length (fx, fz) and moment per length l_y on a beam point.
 
     q: the segment's contact columns (N_SEGMENT, then the global parameters).
-    p, t: centreline point and unit tangent, as (x, z) pairs; tau in [0, 1] along the
-    segment's flexible part.
+    (x, z), (tx, tz): centreline point and unit tangent; tau in [0, 1] along the
+    segment's flexible part. Everything is scalar arithmetic (no 2-vectors): it runs at
+    every Runge-Kutta stage, where small vectors split the loop into many CPU kernels.
     """
     obj_flag, sup_flag, h0, h1 = q[0], q[1], q[2], q[3]
     g = q[N_SEGMENT:]
     k, delta, mu, eps = g[0], g[1], g[2], g[3]
-    slip, s_point, s_normal = g[4:6], g[6:8], g[8:10]
     h = h0 + (h1 - h0) * tau
-    force = jnp.zeros(2)
-    moment = jnp.zeros(())
-    slide = mu * jnp.tanh(jnp.dot(slip, t) / eps)
-    for dist, params in _object_distances(spec, g[N_GLOBAL:], p):
-        d, normal = jax.value_and_grad(lambda x, params=params, dist=dist: dist(params, x))(p)
+    fx = fz = ly = jnp.zeros_like(x)
+    if spec.friction:
+        slide = mu * jnp.tanh((g[4] * tx + g[5] * tz) / eps)
+    for kind, params in _object_params(spec, g[N_GLOBAL:]):
+        d, nx, nz = kind.distance_and_normal(params, x, z)
         qn = obj_flag * penalty(d - h, k, delta)
-        f_t = qn * slide * t
-        force = force + qn * normal + f_t
-        # friction acts at the band's surface, p - h normal: l = (-h normal) x f_t
-        moment = moment - h * (normal[1] * f_t[0] - normal[0] * f_t[1])
+        fx, fz = fx + qn * nx, fz + qn * nz
+        if spec.friction:
+            ft = qn * slide  # friction force along t
+            fx, fz = fx + ft * tx, fz + ft * tz
+            # friction acts at the band's surface, p - h normal: l = (-h normal) x (ft t)
+            ly = ly - h * ft * (nz * tx - nx * tz)
     if spec.support:
-        gap = jnp.dot(p - s_point, s_normal)
-        force = force + sup_flag * penalty(gap, k, delta) * s_normal
-    return force, moment
+        s_nx, s_nz = g[8], g[9]
+        gap = (x - g[6]) * s_nx + (z - g[7]) * s_nz
+        qs = sup_flag * penalty(gap, k, delta)
+        fx, fz = fx + qs * s_nx, fz + qs * s_nz
+    return fx, fz, ly
 
 
 def beam_gaps(spec: ContactSpec, q, p, tau):
@@ -172,8 +234,8 @@ def beam_gaps(spec: ContactSpec, q, p, tau):
     h = h0 + (h1 - h0) * tau
     big = 1e6
     gaps = [
-        jnp.where(obj_flag > 0, dist(params, p) - h, big)
-        for dist, params in _object_distances(spec, g[N_GLOBAL:], p)
+        jnp.where(obj_flag > 0, kind.distance(params, p) - h, big)
+        for kind, params in _object_params(spec, g[N_GLOBAL:])
     ]
     if spec.support:
         gaps.append(jnp.where(sup_flag > 0, jnp.dot(p - g[6:8], g[8:10]), big))

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._contact import default_stiffness, penalty, smoothing
+from ._contact import check_friction, default_stiffness, penalty, smoothing, with_friction
 from ._finger import BACK, FRONT, Finger, FingerError
 from ._objects import _safe_norm
 from ._rod import Integrator
@@ -93,7 +93,8 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         f_obj = jnp.zeros((bs.s.shape[0], 2))  # force per length from objects
         for obj in finger.objects:
             q = obj.params()
-            d, grad = jax.vmap(jax.value_and_grad(lambda x, q=q, obj=obj: obj.distance(q, x)))(p)
+            d, nx, nz = jax.vmap(obj.distance_and_normal, in_axes=(None, 0, 0))(q, p[:, 0], p[:, 1])
+            grad = jnp.stack([nx, nz], axis=-1)
             gap = d - h
             qn = jnp.where(free, penalty(gap, k, delta), 0.0)
             t = bs.frame[:, ::2, 2]
@@ -238,7 +239,8 @@ def _unit(direction, name):
 def _shape_key(topo):
     """What two segment tables must share to describe the same finger (the cuts may
     differ: they follow the design values)."""
-    return (topo.mode, topo.base_kinds, topo.n_crossbeams, topo.tapered, topo.contact)
+    contact = topo.contact and dataclasses.replace(topo.contact, friction=True)
+    return (topo.mode, topo.base_kinds, topo.n_crossbeams, topo.tapered, contact)
 
 
 class _Stepper:
@@ -264,7 +266,9 @@ class _Stepper:
                     "topology= is the segment table of a different finger (other beams, "
                     "crossbeams, objects or mode): pass the .topology of a grasp of this finger"
                 )
-            self.topo = topology
+            # (the given one may have been built without friction, and this finger have it)
+            own = self.topo.contact
+            self.topo = with_friction(topology) if own and own.friction else topology
         self.integrator = integrator
         self.options = options
         self.calls = 0
@@ -460,6 +464,7 @@ def _resolve_near(g: GraspSolution, moved: Finger, integrator, options):
     """The equilibrium of `moved` (objects where they are at the closing) with g's penalty
     stiffness, segment cuts and start: (Solution, ContactResult)."""
     moved = _with_stiffness(moved, g.stiffness)
+    check_friction(g.topology.contact, moved)
     # ref_sign 0 (the sign at g's equilibrium), passed as the stepper passes it: an f64
     # array, so this call reuses the grasp's compiled program
     sol, _, _ = _direct_core(

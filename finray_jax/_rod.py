@@ -29,6 +29,7 @@ import numpy as np
 from jax import lax
 
 from ._contact import ContactSpec, contact_load
+from ._objects import _rsqrt
 from ._rotation import exp_so3, frame_mismatch, hat, planar_frame, vee
 
 
@@ -124,13 +125,12 @@ class AbstractRodModel(eqx.Module):
         k = self.n_stiff * (4 if self.tapered else 1)
         return q[self.n_head : self.n_head + k], q[self.n_head + k :]
 
-    def with_contact(self, q, p, t, tau, force, moment):
-        """Add the contact load at centreline point p, tangent t (3-vectors) to the
-        distributed force (3) and moment (3) per length."""
+    def contact_at(self, q, x, z, tx, tz, tau):
+        """Contact force (fx, fz) and moment l_y per length at centreline point (x, z)
+        with unit tangent (tx, tz); plain zeros without contact (no ops traced)."""
         if self.contact is None:
-            return force, moment
-        f, l = contact_load(self.contact, self.split(q)[1], p[::2], t[::2], tau)
-        return force + jnp.stack([f[0], 0.0, f[1]]), moment + jnp.stack([0.0, l, 0.0])
+            return 0.0, 0.0, 0.0
+        return contact_load(self.contact, self.split(q)[1], x, z, tx, tz, tau)
 
     @staticmethod
     def after_step(y0, y1):
@@ -205,8 +205,8 @@ class PlanarRod(AbstractRodModel):
         if self.contact is not None:
             # A stage's (cos, sin) is a linear combination, not a unit vector: far from a
             # root a stiff contact penalty can feed it back until it overflows. Unit length
-            # keeps every state finite (it costs ~10 % of a step, so only with contact).
-            unit = lax.rsqrt(c * c + s * s)
+            # keeps every state finite (so only with contact).
+            unit = _rsqrt(c * c + s * s)
             c, s = c * unit, s * unit
         u2s = q[4]
         kga, ea, ei = _stiffness_at(self, self.split(q)[0], tau)
@@ -219,17 +219,9 @@ class PlanarRod(AbstractRodModel):
         dx = c * v1 + s * v3
         dz = -s * v1 + c * v3
         dth = my * (1.0 / ei) + u2s
-        zero = jnp.zeros_like(x)
-        f, l = self.with_contact(
-            q,
-            jnp.stack([x, zero, z]),
-            jnp.stack([s, zero, c]),
-            tau,
-            jnp.stack([q[2], zero, q[3]]),
-            jnp.zeros(3),
-        )
-        dmy = -(dz * nx - dx * nz) - l[1]
-        return jnp.stack([dx, dz, dth, -f[0], -f[2], dmy, -s * dth, c * dth])
+        fx, fz, ly = self.contact_at(q, x, z, s, c, tau)
+        dmy = -(dz * nx - dx * nz) - ly
+        return jnp.stack([dx, dz, dth, -(q[2] + fx), -(q[3] + fz), dmy, -s * dth, c * dth])
 
     @staticmethod
     def rigid_transport(y, q):
@@ -364,8 +356,12 @@ class SpatialRod(AbstractRodModel):
         u = _dot(R.T, m) / kbt + ustar
         dp = _dot(R, v)
         dR = jnp.cross(R, u)  # row i of R hat(u) is (row i of R) x u
-        f, l = self.with_contact(q, y[0:3], R[:, 2], tau, q[2:5], jnp.zeros(3))
-        return jnp.concatenate([dp, dR.reshape(9), -f, -jnp.cross(dp, n) - l])
+        f, mp = q[2:5], -jnp.cross(dp, n)
+        if self.contact is not None:
+            fx, fz, ly = self.contact_at(q, y[0], y[2], R[0, 2], R[2, 2], tau)
+            zero = jnp.zeros_like(ly)
+            f, mp = f + jnp.stack([fx, zero, fz]), mp - jnp.stack([zero, ly, zero])
+        return jnp.concatenate([dp, dR.reshape(9), -f, mp])
 
     @staticmethod
     def after_step(y0, y1):

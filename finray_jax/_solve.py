@@ -13,6 +13,7 @@ from jax import lax
 
 from . import _banded
 from ._assembly import Problem, build_topology, segment_table
+from ._contact import check_friction
 from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
 from ._geometry import arc_point, geometry
 from ._rod import Integrator, apply_flow_jacobians, flow_jacobians
@@ -763,6 +764,7 @@ def prepare(finger: Finger, mode: str, topology=None):
     if _is_concrete(finger):
         validate_finger(finger)
     if topology is not None:
+        check_friction(topology.contact, finger)
         return topology
     if not _is_concrete(finger):
         raise ValueError(

@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import io as fio
+from ._contact import friction_may_act, with_friction
 from ._finger import Finger
 from ._grasp import (
     GraspSolution,
@@ -182,12 +183,15 @@ def _setup(problem: OptimizeProblem, say=lambda m: None) -> _Setup:
         closing=jnp.asarray([float(g.closing) for g in gs], jnp.float64),
         pull=jnp.asarray(pulls, jnp.float64),
     )
+    topology = gs[0].topology  # built while closing: frictionless
+    if friction_may_act(bases[0].contact):
+        topology = with_friction(topology)
     static = _Static(
         names=problem.names,
         objective=problem.objective,
         aggregate=problem.aggregate,
         constraints=problem.active_constraints(),
-        topology=gs[0].topology,
+        topology=topology,
         direction=tuple(
             float(v) for v in np.asarray(problem.direction) / np.linalg.norm(problem.direction)
         ),

@@ -53,6 +53,24 @@ def test_distance_is_zero_on_the_outline_and_exact_outside(obj):
     assert abs(float(jnp.linalg.norm(g)) - 1.0) < 1e-9
 
 
+@pytest.mark.parametrize(
+    "obj", OBJECTS + [fr.HalfPlane((1.0, 0.5), (0.6, -0.8))], ids=lambda o: o.kind
+)
+def test_closed_form_normal_is_the_distance_gradient(obj):
+    """`distance_and_normal` (closed form on scalars, what the contact rhs evaluates) is
+    `distance` and its autodiff gradient, at points inside, near and far outside (random,
+    so almost surely off the kinks of the distance field)."""
+    q = obj.params()
+    center = obj.outline(400).mean(axis=0)
+    rng = np.random.default_rng(3)
+    pts = center + rng.normal(size=(60, 2)) * np.array([[0.5], [2.0], [6.0]]).repeat(20, 0)
+    d_ref, g_ref = jax.vmap(jax.value_and_grad(lambda x: obj.distance(q, x)))(jnp.asarray(pts))
+    d, nx, nz = jax.vmap(obj.distance_and_normal, in_axes=(None, 0, 0))(q, pts[:, 0], pts[:, 1])
+    np.testing.assert_allclose(d, d_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.stack([nx, nz], -1), g_ref, rtol=0, atol=1e-9)
+    assert np.any(np.asarray(d_ref) < 0) and np.any(np.asarray(d_ref) > 0)
+
+
 def test_half_plane_distance():
     h = fr.HalfPlane((1.0, 0.0), (2.0, 0.0))
     assert float(h.signed_distance(np.array([3.0, 5.0]))) == pytest.approx(2.0)
@@ -317,6 +335,41 @@ def test_holding_force_grows_with_closing_and_with_friction(finger1):
     g = fr.grasp(finger1, 6.0)
     rough = fr.release_force(g, step=3.0, friction=0.3)
     assert rough.peak > peaks[1]
+
+
+def test_friction_is_left_out_only_where_it_cannot_act(finger1, grasps):
+    """A grasp closes without slip, so its topology leaves the friction law out of the
+    rhs; a finger whose friction acts refuses that topology (naming both values), and
+    the grasp's stepper switches the law on (`with_friction`), matching a topology built
+    with friction. A frictionless finger gets the same answer with the law in or out."""
+    original, _ = grasps
+    assert original.topology.contact.friction is False
+
+    def rough(f, mu=0.3):
+        values = (jnp.asarray(mu), jnp.asarray([0.0, 1.0]))
+        return eqx.tree_at(lambda f: (f.contact.friction, f.contact.slip_direction), f, values)
+
+    with pytest.raises(fr.FingerError, match=r"contact.friction = 0.3 .*slip_direction"):
+        fr.solve_finger(rough(finger1), topology=original.topology)
+    with pytest.raises(fr.FingerError, match="frictionless"):
+        fr.regrasp(original, rough(finger1))
+
+    def solve(finger, topology):
+        st = _Stepper(finger, "planar", original.integrator, fr.SolverOptions(), False, topology)
+        sol, ok = st.solve(finger, original.solution.unknowns)
+        assert ok
+        return st.topo, sol.unknowns
+
+    topo, a = solve(rough(original.finger), original.topology)
+    assert topo == fr.with_friction(original.topology) and topo.contact.friction
+    _, b = solve(rough(original.finger), None)
+    assert float(jnp.max(jnp.abs(a - b))) < 1e-12
+    assert float(jnp.max(jnp.abs(a - original.solution.unknowns))) > 1e-6  # friction acts
+    smooth = rough(original.finger, 0.0)
+    topo, c = solve(smooth, original.topology)
+    assert not topo.contact.friction
+    _, d = solve(smooth, fr.with_friction(original.topology))
+    assert float(jnp.max(jnp.abs(c - d))) < 1e-12
 
 
 def test_regrasp_derivative_matches_finite_differences(finger1):
