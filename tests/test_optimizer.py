@@ -422,6 +422,7 @@ def test_holding_force_gradient_is_the_envelope_gradient(tmp_path):
     text = CLAMP.format(finger=FINGER, strain=10.0, pressure=100.0, iterations=2)
     p = _load('objective = "holding_force"\nfriction = 0.5\n' + text, tmp_path)
     setup = O._setup(p)
+    assert setup.static.topology.contact.friction  # the grasp's was built without
     z0 = jnp.asarray(O._z_of(p.lo, p.hi, p.x0), jnp.float64)
     anchors = O._refine_pull(setup, z0, setup.anchors, p.pull_step)
     # at the refined peak dF/dt vanishes, or the peak is the onset of the pull (t* = 0,
