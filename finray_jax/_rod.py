@@ -29,7 +29,7 @@ import numpy as np
 from jax import lax
 
 from ._contact import ContactSpec, contact_load
-from ._objects import _rsqrt
+from ._objects import rsqrt
 from ._rotation import exp_so3, frame_mismatch, hat, planar_frame, vee
 
 
@@ -206,7 +206,7 @@ class PlanarRod(AbstractRodModel):
             # A stage's (cos, sin) is a linear combination, not a unit vector: far from a
             # root a stiff contact penalty can feed it back until it overflows. Unit length
             # keeps every state finite (so only with contact).
-            unit = _rsqrt(c * c + s * s)
+            unit = rsqrt(c * c + s * s)
             c, s = c * unit, s * unit
         u2s = q[4]
         kga, ea, ei = _stiffness_at(self, self.split(q)[0], tau)
