@@ -3,9 +3,11 @@
 Every object is an equinox Module of float arrays (centre, angle, sizes: design values
 that never recompile). Its `kind` and, for a polygon, its vertex count are static. The
 solver needs only two things from an object: its parameters as one flat vector
-(`params`) and the signed distance of a point from its surface given those parameters
-(`distance`, negative inside). Points are (x, z) pairs; an object's `angle` (rad) turns
-its local axes counter-clockwise in an x-z plot with x to the right and z up.
+(`params`) and the signed distance of a point from its surface given those parameters,
+negative inside, with its gradient, the outward normal (`distance_and_normal`, written
+in closed form on scalars; `distance` is its first part). Points are (x, z) pairs; an
+object's `angle` (rad) turns its local axes counter-clockwise in an x-z plot with x to
+the right and z up.
 
 Distances are exact outside the object and smooth there (C1 for the rounded shapes,
 convex polygons and half-planes); every norm is a safe one, so gradients stay finite at
@@ -29,13 +31,6 @@ def _safe_norm(v, axis=-1):
     sq = jnp.sum(v * v, axis=axis)
     small = sq < 1e-30
     return jnp.where(small, 0.0, jnp.sqrt(jnp.where(small, 1.0, sq)))
-
-
-def _to_local(p, center, angle):
-    """Coordinates of world point p (x, z) in an object's axes."""
-    d = p - center
-    c, s = jnp.cos(angle), jnp.sin(angle)
-    return jnp.stack([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
 
 
 def _safe_rsqrt(sq):
@@ -77,21 +72,20 @@ class AbstractObject(eqx.Module):
         """All parameters as one flat float64 vector (layout known to `distance`)."""
         raise NotImplementedError
 
-    @staticmethod
-    def distance(q, p):
+    @classmethod
+    def distance(cls, q, p):
         """Signed distance of point p (x, z) from the surface, for parameters q."""
-        raise NotImplementedError
+        return cls.distance_and_normal(q, p[0], p[1])[0]
 
     @classmethod
     def distance_and_normal(cls, q, x, z):
         """(d, nx, nz): the signed distance of point (x, z) and its gradient, the unit
         outward normal, as scalars.
 
-        The contact rhs evaluates this at every Runge-Kutta stage, so the kinds write it
+        The contact rhs evaluates this at every Runge-Kutta stage, so each kind writes it
         in closed form on scalars: 2-vectors and a reverse pass there cut the loop body
-        into many small kernels on the CPU. This default differentiates `distance`."""
-        d, g = jax.value_and_grad(lambda p: cls.distance(q, p))(jnp.stack([x, z]))
-        return d, g[0], g[1]
+        into many small kernels on the CPU."""
+        raise NotImplementedError
 
     def key(self) -> tuple:
         """What fixes the parameter layout (static)."""
@@ -131,10 +125,6 @@ class Circle(AbstractObject):
     def params(self):
         return jnp.concatenate([self.center, self.radius[None]])
 
-    @staticmethod
-    def distance(q, p):
-        return _safe_norm(p - q[0:2]) - q[2]
-
     @classmethod
     def distance_and_normal(cls, q, x, z):
         dx, dz = x - q[0], z - q[1]
@@ -163,10 +153,6 @@ class Ellipse(AbstractObject):
 
     def params(self):
         return jnp.concatenate([self.center, self.semi_axes, self.angle[None]])
-
-    @staticmethod
-    def distance(q, p):
-        return Ellipse.distance_and_normal(q, p[0], p[1])[0]
 
     @classmethod
     def distance_and_normal(cls, q, x, z):
@@ -215,15 +201,6 @@ class RoundedRectangle(AbstractObject):
         return jnp.concatenate(
             [self.center, self.half_size, self.corner_radius[None], self.angle[None]]
         )
-
-    @staticmethod
-    def distance(q, p):
-        r = q[4]
-        local = jnp.abs(_to_local(p, q[0:2], q[5]))
-        e = local - (q[2:4] - r)
-        outside = _safe_norm(jnp.maximum(e, 0.0))
-        inside = jnp.minimum(jnp.maximum(e[0], e[1]), 0.0)
-        return outside + inside - r
 
     @classmethod
     def distance_and_normal(cls, q, x, z):
@@ -280,21 +257,6 @@ class Polygon(AbstractObject):
         return jnp.concatenate(
             [self.center, self.corner_radius[None], self.angle[None], self.vertices.reshape(-1)]
         )
-
-    @staticmethod
-    def distance(q, p):
-        v = q[4:].reshape(-1, 2)
-        local = _to_local(p, q[0:2], q[3])
-        a, b = v, jnp.roll(v, -1, axis=0)
-        edge = b - a
-        rel = local - a
-        t = jnp.clip(jnp.sum(rel * edge, axis=-1) / jnp.sum(edge * edge, axis=-1), 0.0, 1.0)
-        seg = _safe_norm(rel - t[:, None] * edge)
-        # Outward normals of a counter-clockwise polygon: (ez, -ex).
-        normal = jnp.stack([edge[:, 1], -edge[:, 0]], axis=-1) / _safe_norm(edge)[:, None]
-        plane = jnp.sum(rel * normal, axis=-1)
-        outside = jnp.max(plane) > 0.0  # convex: outside iff beyond some edge's line
-        return jnp.where(outside, jnp.min(seg), jnp.max(plane)) - q[2]
 
     @classmethod
     def distance_and_normal(cls, q, x, z):
@@ -369,10 +331,6 @@ class HalfPlane(AbstractObject):
 
     def params(self):
         return jnp.concatenate([self.point, self.normal / _safe_norm(self.normal)])
-
-    @staticmethod
-    def distance(q, p):
-        return jnp.dot(p - q[0:2], q[2:4])
 
     @classmethod
     def distance_and_normal(cls, q, x, z):

@@ -57,9 +57,9 @@ def test_distance_is_zero_on_the_outline_and_exact_outside(obj):
     "obj", OBJECTS + [fr.HalfPlane((1.0, 0.5), (0.6, -0.8))], ids=lambda o: o.kind
 )
 def test_closed_form_normal_is_the_distance_gradient(obj):
-    """`distance_and_normal` (closed form on scalars, what the contact rhs evaluates) is
-    `distance` and its autodiff gradient, at points inside, near and far outside (random,
-    so almost surely off the kinks of the distance field)."""
+    """`distance_and_normal`'s closed-form normal (what the contact rhs evaluates) is the
+    autodiff gradient of its distance, at points inside, near and far outside (random, so
+    almost surely off the kinks of the distance field)."""
     q = obj.params()
     center = obj.outline(400).mean(axis=0)
     rng = np.random.default_rng(3)
