@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._banded import BandPlan, plan_band
-from ._contact import ContactSpec, contact_spec, global_params
+from ._contact import ContactSpec, beam_gaps, contact_spec, global_params
 from ._finger import BACK, FRONT, Finger, PointLoad, beam_lengths
 from ._geometry import Geometry, arc_point, section_stiffness
 from ._rod import TAPER_NODES, rod_model, segment_flow, segment_trajectories
@@ -213,9 +213,24 @@ def build_topology(finger: Finger, mode: str) -> Topology:
             evs = _subdivide(finger, b, evs, finger.contact.segment_length)
         events.append(tuple(evs))
     tapered = finger.front.tip_thickness is not None or finger.back.tip_thickness is not None
+    if contact is not None:
+        contact = dataclasses.replace(contact, near=_near_count(finger, events))
     return Topology(
         mode, (ad.front_base, ad.back_base), finger.n_crossbeams, tuple(events), tapered, contact
     )
+
+
+def _near_count(finger: Finger, events):
+    """How many segments a full-load Newton solve evaluates contact on (None: all): the
+    supported segments and `Contact.near_segments` more, if fewer than the main beams'."""
+    near = finger.contact.near_segments
+    main = len(events[FRONT]) + len(events[BACK]) + 2
+    supported = (
+        events[BACK].index(("support_end", 0)) + 1 if ("support_end", 0) in events[BACK] else 0
+    )
+    if near is None or supported + near >= main:
+        return None
+    return supported + near
 
 
 def _subdivide(finger, beam, events, max_length):
@@ -401,13 +416,18 @@ def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable
 
 
 class Problem(eqx.Module):
-    """Everything the residual needs, at load factor 1. `lam` scales every load."""
+    """Everything the residual needs, at load factor 1. `lam` scales every load.
+
+    order: None, or the segments nearest first (a permutation, argsort of `gaps`): then
+    the residual evaluates the contact law on the first `topo.contact.near` of them only
+    (the rest integrate without contact terms, exact where they touch nothing)."""
 
     topo: Topology = eqx.field(static=True)
     integrator: eqx.Module
     finger: Finger
     geo: Geometry
     table: SegmentTable
+    order: jax.Array | None = None
 
     @property
     def model(self):
@@ -431,8 +451,35 @@ class Problem(eqx.Module):
         return y / self.scale()
 
     def ends(self, Y, lam):
-        starts = self.start_states(Y)
-        return starts, segment_flow(self.model, self.integrator, starts, self.params(lam))
+        starts, Q = self.start_states(Y), self.params(lam)
+        if self.order is None:
+            return starts, segment_flow(self.model, self.integrator, starts, Q)
+        k, o = self.topo.contact.near, self.order
+        free = rod_model(self.topo.mode, self.topo.tapered, self.topo.contact.free())
+        near = segment_flow(self.model, self.integrator, starts[o[:k]], Q[o[:k]])
+        rest = segment_flow(free, self.integrator, starts[o[k:]], Q[o[k:]])
+        return starts, jnp.concatenate([near, rest])[jnp.argsort(o)]
+
+    def start_gaps(self, Y):
+        """(S,) every segment's gap at its start point (no integration)."""
+        md, spec = self.model, self.topo.contact
+        cols = jax.vmap(lambda q: md.split(q)[1])(self.params(jnp.ones(())))
+        pos = jax.vmap(md.position)(self.start_states(Y))[:, jnp.array([0, 2])]
+        return jnp.min(jax.vmap(lambda c, p: beam_gaps(spec, c, p, 0.0))(cols, pos), axis=-1)
+
+    def gaps(self, Y, lam):
+        """(S,) every segment's smallest gap to an object or the support at its step
+        points (1e6 where it cannot touch anything); argsort gives `order`."""
+        traj = self.integrated(Y, lam)
+        md, spec = self.model, self.topo.contact
+        tau = jnp.linspace(0.0, 1.0, traj.shape[1])
+
+        def gap(q, states):
+            cols = md.split(q)[1]
+            at = lambda y, t: beam_gaps(spec, cols, md.position(y)[jnp.array([0, 2])], t)
+            return jnp.min(jax.vmap(at)(states, tau))
+
+        return jax.vmap(gap)(self.params(lam), traj)
 
     def residual(self, Y, lam):
         starts, ends = self.ends(Y, lam)

@@ -406,6 +406,12 @@ def _validate_contact(finger: Finger) -> None:
     _shaped("contact.slip_direction", _finite("contact.slip_direction", c.slip_direction), (2,))
     if not (isinstance(c.segment_length, (int, float)) and c.segment_length > 0):
         raise FingerError(f"contact.segment_length must be positive, got {c.segment_length!r}")
+    near = c.near_segments
+    if near is not None and not (isinstance(near, int) and not isinstance(near, bool) and near > 0):
+        raise FingerError(
+            "contact.near_segments must be a positive integer or None (every segment), "
+            f"got {near!r}"
+        )
     for i, obj in enumerate(finger.objects):
         _validate_object(f"objects[{i}]", obj)
     for i, obj in enumerate(finger.objects):

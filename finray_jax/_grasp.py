@@ -22,7 +22,7 @@ from ._finger import BACK, FRONT, Finger, FingerError
 from ._objects import _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
-from ._solve import SolverOptions, _direct_core, prepare, resolve_mode
+from ._solve import SolverOptions, _direct_core, prepare, resolve_mode, undeformed_unknowns
 from ._types import as_float
 
 GRASP_STEPS = 16  # default integration steps per segment for contact problems
@@ -282,6 +282,8 @@ class _Stepper:
     def solve(self, finger, init):
         self.calls += 1
         ref = np.float64(self.sign if init is not None else 0.0)
+        if init is None:  # (an array either way: one compiled program for both)
+            init = undeformed_unknowns(self.topo, finger)
         sol, ok, sign = _direct_core(self.topo, self.integrator, self.options, finger, init, ref)
         ok = bool(ok)
         if ok:

@@ -11,6 +11,12 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "No equilibrium on the loading branch: the load is beyond the finger's limit (fold) "
         "load. Reduce the load, or find the limit with `limit_load`."
     )
+    contact_outside_near_segments = (
+        "The Newton solve evaluates contact on the segments nearest the objects only "
+        "(Contact.near_segments and the supported ones), and after three choices of them "
+        "some other segment still touched an object: the contact spans more segments. "
+        "Raise Contact.near_segments, or set it to None (every segment)."
+    )
     continuation_failed = (
         "Load continuation could not reach the full load: the arc-length step fell below "
         "SolverOptions.min_arc_step without a fold being found. Try a smaller "

@@ -151,6 +151,11 @@ class _Newton(eqx.Module):
     factors: object  # of the Jacobian at the last accepted linearisation
     reuse: jax.Array  # whether the next iteration reuses `factors`
     r_next: jax.Array  # with contact: the residual at the next trial point (backtracking's)
+    # With near contact segments (topo.contact.near):
+    order: jax.Array | None  # the segments nearest first (`Problem.order`)
+    rounds: jax.Array  # choices of the near segments made
+    restart: jax.Array  # the next iteration starts a round (a new choice)
+    outside: jax.Array  # contact found outside the near segments with no rounds left
 
 
 def _linearise(problem, lam, y, linear_solver):
@@ -214,7 +219,9 @@ def _backtrack(problem, lam, y, dy, r, max_halvings=12):
     return a * dy, rr
 
 
-def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halvings=12):
+def _newton_lean(
+    problem, y0, lam, options: SolverOptions, active=True, max_halvings=12, max_rounds=3
+):
     """Newton's method on the natural residual, with a line search that costs nothing when
     the full step is good.
 
@@ -251,15 +258,24 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
     always is).
     """
     contact = problem.topo.contact is not None
+    choosing = contact and problem.topo.contact.near is not None
     solver = options.linear_solver
+    S = problem.table.length.shape[0]
+    at = lambda st: dataclasses.replace(problem, order=st.order) if choosing else problem
 
     def fresh(y_t, st):
-        return _linearise(problem, lam, y_t, solver)
+        return _linearise(at(st), lam, y_t, solver)
 
     def reused(y_t, st):
         # With contact the backtracking has evaluated the residual at y_t already.
         r = st.r_next if contact else _natural_fn(y_t, (problem, lam))
         return r, st.factors, st.sign
+
+    def choose(y, order):
+        """The segments nearest first at y, and whether a segment outside the near ones
+        of `order` touches (the contact law left out there was not zero)."""
+        gaps = problem.gaps(y.reshape(S, -1), lam)
+        return jnp.argsort(gaps), jnp.min(gaps[order[problem.topo.contact.near :]]) < 0.0
 
     def body(st: _Newton):
         y_t = st.y - st.a * st.dy
@@ -274,17 +290,18 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         # residual sits on a round-off floor above atol (stiff contact penalties).
         full = jnp.max(jnp.abs(dy) / (options.atol + options.rtol * jnp.abs(y_t)))
         first = st.k == 0
+        start = first | st.restart
         decreased = norm <= (1.0 - 1e-4 * st.a) * st.norm
         # A chord step whose trial point did not decrease the residual is not cut: the
         # next iteration linearises at the same point instead.
         retry = jnp.asarray(False) if contact else st.reuse & ~decreased
-        accept = first | contact | decreased
+        accept = start | contact | decreased
         accept = accept | ((st.a < 0.5**max_halvings) & ~retry)
         if options.max_rotation_step is not None:
             dy = _cap_rotation(problem, dy, options.max_rotation_step)
         r_next = st.r_next
         if contact:  # (after the cap: r_next is the residual where the step ends)
-            dy, r_next = _backtrack(problem, lam, y_t, dy, r, max_halvings)
+            dy, r_next = _backtrack(at(st), lam, y_t, dy, r, max_halvings)
         y = y_t - dy
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))
@@ -295,9 +312,23 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         ratio = step / jnp.maximum(st.step, 1e-300)
         # Newton's quadratic regime: the next step would be step^3 / previous^2. A chord
         # step contracts linearly (by `ratio`): what is left is step ratio / (1 - ratio).
-        quadratic = (~first) & (ratio < 1e-2) & (step * ratio**2 < 0.1) & near & ~st.reuse
+        quadratic = (~start) & (ratio < 1e-2) & (step * ratio**2 < 0.1) & near & ~st.reuse
         linear = st.reuse & (ratio < 0.5) & (step * ratio / (1.0 - ratio) < 0.1) & near
         conv = accept & (conv | (full < 0.1) | quadratic | linear)
+        no = jnp.asarray(False)
+        order, again, outside = st.order, no, st.outside
+        if choosing:
+            # A root of the near problem is a root of the whole one where no segment
+            # outside the near ones touches. Checked at a root, and wherever a far
+            # segment's start lies inside an object (cheap: no integration); on contact
+            # outside, choose again from there and go on while rounds are left.
+            far = st.order[problem.topo.contact.near :]
+            inside = jnp.min(problem.start_gaps(y.reshape(S, -1))[far]) < 0.0
+            keep = lambda y, o: (o, jnp.asarray(False))
+            order, missed = lax.cond(conv | inside, choose, keep, y, st.order)
+            again = missed & (st.rounds < max_rounds)
+            outside = outside | (missed & ~again)  # (and give up)
+            conv = conv & ~missed
         # The next iteration reuses these factors while that is cheaper than linearising:
         # after a short Newton step, or a chord step that contracted tenfold. (With a
         # fourfold bound the grasp's release traces stalled at max_newton_steps.)
@@ -306,22 +337,27 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         k = st.k + 1
         pick = lambda new, old: jnp.where(accept, new, old)
         return _Newton(
-            y=jnp.where(conv, y, pick(y_t, st.y)),
+            y=jnp.where(conv | again, y, pick(y_t, st.y)),
             norm=pick(norm, st.norm),
-            dy=pick(dy, st.dy),
+            dy=jnp.where(again, 0.0, pick(dy, st.dy)),
             a=jnp.where(accept, 1.0, jnp.where(retry, st.a, 0.5 * st.a)),
             step=pick(step, st.step),
             k=k,
-            done=conv | (accept & ~finite) | (k >= options.max_newton_steps),
+            done=conv | outside | (accept & ~finite) | (k >= options.max_newton_steps),
             ok=conv & finite,
             sign_first=jnp.where(first, sign, st.sign_first),
             sign=pick(sign, st.sign),
             factors=jax.tree_util.tree_map(pick, factors, st.factors),
-            reuse=options.reuse_jacobian & reuse_next,
+            reuse=options.reuse_jacobian & reuse_next & ~again,
             r_next=r_next,
+            order=order,
+            rounds=jnp.where(again, st.rounds + 1, st.rounds),
+            restart=again,
+            outside=outside,
         )
 
     _, factors, _ = jax.eval_shape(lambda: _linearise(problem, lam, y0, solver))
+    # (the factors' shapes do not depend on `order`)
     init = _Newton(
         y=y0,
         norm=jnp.asarray(jnp.inf),
@@ -336,6 +372,10 @@ def _newton_lean(problem, y0, lam, options: SolverOptions, active=True, max_halv
         factors=jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), factors),
         reuse=jnp.asarray(False),
         r_next=jnp.zeros_like(y0),
+        order=jnp.argsort(problem.gaps(y0.reshape(S, -1), lam)) if choosing else None,
+        rounds=jnp.asarray(1),
+        restart=jnp.asarray(False),
+        outside=jnp.asarray(False),
     )
     return lax.while_loop(lambda st: ~st.done, body, init)
 
@@ -638,7 +678,15 @@ def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init,
     one = jnp.ones(())
     y, traj = _attach_implicit_gradient(problem, one, direct.y, options.linear_solver)
     code = RESULTS.where(ok, RESULTS.successful, RESULTS.nonlinear_divergence)
+    code = RESULTS.where(direct.outside, RESULTS.contact_outside_near_segments, code)
     return _outputs(problem, y, one, code, direct.k, traj), ok, direct.sign
+
+
+@functools.partial(jax.jit, static_argnums=(0,))
+def undeformed_unknowns(topo, finger: Finger):
+    """The scaled unknowns of the undeformed finger (the start `init=None` means): a
+    caller that passes them instead of None shares one compiled core for both starts."""
+    return _make_problem(topo, None, finger).undeformed().reshape(-1)
 
 
 @_core_jit

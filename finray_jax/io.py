@@ -648,11 +648,22 @@ def _object(value, p: str, r: _Reader):
 
 
 def _contact(value, r: _Reader) -> Contact:
-    keys = ("stiffness", "max_penetration", "friction", "friction_regularisation", "segment_length")
+    keys = (
+        "stiffness",
+        "max_penetration",
+        "friction",
+        "friction_regularisation",
+        "segment_length",
+        "near_segments",
+    )
     tbl = r.table(value, "contact", keys)
     args = {}
     for key in keys:
-        if key in tbl:
+        if key == "near_segments" and key in tbl:  # a count, or "all"
+            v = tbl[key]
+            near = isinstance(v, str) and r.string(v, "contact.near_segments", ("all",))
+            args[key] = None if near else r.integer(v, "contact.near_segments", minimum=1)
+        elif key in tbl:
             args[key] = r.number(
                 tbl[key],
                 f"contact.{key}",
@@ -948,6 +959,7 @@ def _objects_toml(finger: Finger) -> list[str]:
         f"friction = {_tf(c.friction)}",
         f"friction_regularisation = {_tf(c.friction_regularisation)}",
         f"segment_length = {_tf(c.segment_length)}",
+        "near_segments = " + ('"all"' if c.near_segments is None else str(c.near_segments)),
         "",
     ]
     return out if finger.objects or finger.adaptor.support_length is not None else []

@@ -12,6 +12,7 @@ import finray_jax as fr
 import finray_jax.io
 from finray_jax._contact import penalty
 from finray_jax._grasp import _Stepper
+from finray_jax._solve import _direct_core
 
 # ---------------------------------------------------------------------------------------
 # Objects and the penalty law
@@ -160,6 +161,46 @@ def test_tip_pressed_onto_a_wall_converges_to_rigid_contact():
     assert errors[0] > errors[1] > errors[2]
     assert errors[0] > 3.0 * errors[2]
     assert errors[2] < 5e-3
+
+
+def _with_near(finger, near):
+    return eqx.tree_at(
+        lambda f: f.contact,
+        finger,
+        fr.Contact(
+            stiffness=finger.contact.stiffness,
+            max_penetration=finger.contact.max_penetration,
+            near_segments=near,
+        ),
+    )
+
+
+def test_contact_beyond_the_near_segments_is_found():
+    """A distributed load presses the cantilever's outer half onto a parallel wall: 14 of
+    its 24 segments touch. A Newton solve that evaluates contact on fewer segments must say
+    so (it chooses the near segments three times, each time finding contact outside);
+    with enough of them it finds the whole finger's root, which every segment gives."""
+    gap = 0.3
+    wall = fr.HalfPlane((-(T / 2 + gap), 0.0), (1.0, 0.0))
+    load = fr.DistributedLoad(0, (60.0, 120.0), (-0.3, 0.0, 0.0))
+    base = _cantilever_finger([wall], 0.1, [load])
+    solutions = {}
+    for near in (None, 8, 16):
+        finger = _with_near(base, near)
+        topo = fr.topology_of(finger, "planar")
+        assert topo.contact.near == near
+        sol, _, _ = _direct_core(
+            topo, fr.Integrator(steps=16), fr.SolverOptions(), finger, None, np.float64(0.0)
+        )
+        solutions[near] = sol
+    full = solutions[None]
+    assert full.converged
+    touching = np.asarray(fr.contact_result(base, full, (-1.0, 0.0)).max_penetration) > 0
+    assert touching
+    assert solutions[8].result == fr.RESULTS.contact_outside_near_segments
+    assert "Contact.near_segments" in f"{fr.RESULTS[solutions[8].result]}"
+    assert solutions[16].converged
+    np.testing.assert_allclose(solutions[16].unknowns, full.unknowns, rtol=0, atol=1e-9)
 
 
 # ---------------------------------------------------------------------------------------

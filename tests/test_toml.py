@@ -6,6 +6,7 @@ import math
 import pathlib
 
 import diffrax as dfx
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -648,3 +649,28 @@ def test_write_json_strict(tmp_path):
         "e": "text",
         "f": True,
     }
+
+
+def test_contact_near_segments():
+    d = doc()
+    d["contact"] = {"near_segments": "all"}
+    assert load(d)[0].contact.near_segments is None
+    d["contact"] = {"near_segments": 12}
+    assert load(d)[0].contact.near_segments == 12
+    assert fr.Contact().near_segments == 8
+    bad = ((0, "must be an integer >= 1"), (2.5, "expected an integer"), ("some", '"all"'))
+    for value, fragment in bad:
+        d["contact"] = {"near_segments": value}
+        assert_error(d, "contact.near_segments", fragment)
+    # written back (with an object, so that the file has a [contact] table)
+    for near in (None, 5):
+        finger = load(doc())[0]
+        finger = eqx.tree_at(
+            lambda f: (f.objects, f.contact),
+            finger,
+            ((fr.Circle((-20.0, 60.0), 9.0),), fr.Contact(near_segments=near)),
+        )
+        back, _ = fio.loads_finger(fio.finger_to_toml(finger))
+        assert back.contact.near_segments == near
+    with pytest.raises(fr.FingerError, match=r"contact.near_segments must be a positive integer"):
+        fr.validate_finger(eqx.tree_at(lambda f: f.contact, finger, fr.Contact(near_segments=0)))
