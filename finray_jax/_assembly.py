@@ -460,26 +460,20 @@ class Problem(eqx.Module):
         rest = segment_flow(free, self.integrator, starts[o[k:]], Q[o[k:]])
         return starts, jnp.concatenate([near, rest])[jnp.argsort(o)]
 
-    def start_gaps(self, Y):
-        """(S,) every segment's gap at its start point (no integration)."""
-        md, spec = self.model, self.topo.contact
-        cols = jax.vmap(lambda q: md.split(q)[1])(self.params(jnp.ones(())))
-        pos = jax.vmap(md.position)(self.start_states(Y))[:, jnp.array([0, 2])]
-        return jnp.min(jax.vmap(lambda c, p: beam_gaps(spec, c, p, 0.0))(cols, pos), axis=-1)
-
-    def gaps(self, Y, lam):
+    def gaps(self, Y, lam, along=True):
         """(S,) every segment's smallest gap to an object or the support at its step
-        points (1e6 where it cannot touch anything); argsort gives `order`."""
-        traj = self.integrated(Y, lam)
+        points (one integration), or with along=False at its start point only (none);
+        1e6 where it cannot touch anything. argsort gives `order`."""
+        states = self.integrated(Y, lam) if along else self.start_states(Y)[:, None]
         md, spec = self.model, self.topo.contact
-        tau = jnp.linspace(0.0, 1.0, traj.shape[1])
+        tau = jnp.linspace(0.0, 1.0, states.shape[1])
 
-        def gap(q, states):
+        def gap(q, points):
             cols = md.split(q)[1]
             at = lambda y, t: beam_gaps(spec, cols, md.position(y)[jnp.array([0, 2])], t)
-            return jnp.min(jax.vmap(at)(states, tau))
+            return jnp.min(jax.vmap(at)(points, tau))
 
-        return jax.vmap(gap)(self.params(lam), traj)
+        return jax.vmap(gap)(self.params(lam), states)
 
     def residual(self, Y, lam):
         starts, ends = self.ends(Y, lam)

@@ -55,11 +55,11 @@ class Contact(eqx.Module):
         main-beam segments besides those the support backs (static): the ones nearest
         the objects and the support where it starts. Elsewhere the rhs has no contact
         terms, which makes an iteration about twice as fast (the contact law and the two
-        position directions it adds to every segment's Jacobian). The solve then checks
-        the whole finger: where a segment outside the set touches an object (the full
-        residual differs from the solve's by more than atol) it chooses again from that
-        state and goes on, up to three rounds, and otherwise reports
-        `contact_outside_near_segments`. None: every segment, always.
+        position directions it adds to every segment's Jacobian). The solve checks the
+        choice (the other segments' start points at every iterate, all their step points
+        at a root): where one of them touches, it chooses again from that state and goes
+        on, up to three choices, and otherwise reports `contact_outside_near_segments`.
+        None: every segment, always.
     """
 
     stiffness: jax.Array | None = eqx.field(

@@ -323,7 +323,7 @@ def _newton_lean(
             # segment's start lies inside an object (cheap: no integration); on contact
             # outside, choose again from there and go on while rounds are left.
             far = st.order[problem.topo.contact.near :]
-            inside = jnp.min(problem.start_gaps(y.reshape(S, -1))[far]) < 0.0
+            inside = jnp.min(problem.gaps(y.reshape(S, -1), lam, along=False)[far]) < 0.0
             keep = lambda y, o: (o, jnp.asarray(False))
             order, missed = lax.cond(conv | inside, choose, keep, y, st.order)
             again = missed & (st.rounds < max_rounds)
