@@ -355,7 +355,11 @@ def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable
     ad, cb = finger.adaptor, finger.crossbeams
     zero_c = jnp.zeros(topo.n_crossbeams)
     clamp = jnp.concatenate([jnp.stack([ad.front_clamp_length, ad.back_clamp_length]), zero_c])
-    rigid = jnp.clip(clamp[beams] - start_s, 0.0, length)
+    # min(max(clamp - s0, 0), length), ties resolved toward the clamp: a zero-length
+    # segment (two events at one arc length) has no rigid part on either side of the tie,
+    # where jnp.clip's min would pass half of d(length) into d(rigid).
+    reach = jnp.maximum(clamp[beams] - start_s, 0.0)
+    rigid = jnp.where(reach <= length, reach, length)
 
     # Sections: thickness linear from base (t0) to tip (t1) along each beam.
     def ends(sec):
