@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 
 import finray_jax as fr
-from finray_jax import _fold, design
+from finray_jax import _fold, _solve, design
 from finray_jax.io import load_finger
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -230,6 +230,29 @@ def test_finger1_ties_are_one_sided(finger1_derivs):
         "crossbeams.front_s[4]": -1.0,
         "crossbeams.front_s[6]": 1.0,
     }
+
+
+def test_zero_length_segment_has_no_rigid_part_in_its_derivative():
+    """Finger-1's crossbeam 4 ends where the distributed load starts (s = 75): the front
+    segment between the two events has zero length. Moving the crossbeam toward the base
+    lengthens it, and nothing of the front beam is clamped, so the derivative of every
+    front segment's rigid part is zero (jnp.clip's min at the tie gave -0.5 there)."""
+    base = _finger1()
+    topo = fr.topology_of(base, "planar")
+    name = "crossbeams.front_s[4]"
+    s4 = design.get_design(base, [name])[name]
+
+    def table(s):
+        finger = design.set_design(base, {name: s})
+        return _solve._make_problem(topo, fr.Integrator(), finger).table
+
+    t, dt = jax.jvp(table, (jnp.asarray(s4),), (jnp.ones(()),))
+    zero = np.flatnonzero(np.asarray(t.length) == 0.0)  # (crossbeam 6 ties at s = 105)
+    moved = zero[np.asarray(dt.length)[zero] != 0.0]
+    assert moved.size == 1 and float(t.start_s[moved[0]]) == 75.0, np.asarray(t.length)
+    assert float(dt.length[moved[0]]) == -1.0
+    # (no segment's clamped part depends on a front attachment)
+    np.testing.assert_array_equal(np.asarray(dt.rigid), 0.0)
 
 
 @pytest.mark.slow
