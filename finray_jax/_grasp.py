@@ -278,6 +278,7 @@ class _Stepper:
         # started, off the path).
         self.sign = 0.0
         self.prev = None  # (t, unknowns) of the point before the last one `follow` accepted
+        self.failure = RESULTS.nonlinear_divergence  # the result of the last failed solve
 
     def solve(self, finger, init):
         self.calls += 1
@@ -288,6 +289,8 @@ class _Stepper:
         ok = bool(ok)
         if ok:
             self.sign = float(sign)
+        else:
+            self.failure = sol.result
         return sol, ok
 
     def follow(self, at, t0, t1, init, first_step, min_step, prev=None):
@@ -430,12 +433,9 @@ def grasp(
             finger = _with_stiffness(finger, k)
             res = contact_result(at(t), sol, w)
         rounds += 1
-    if not ok:
-        sol = eqx.tree_at(
-            lambda s: s.result,
-            sol,
-            RESULTS.where(jnp.asarray(False), RESULTS.successful, RESULTS.nonlinear_divergence),
-        )
+    if not ok:  # (the last accepted state, with why the next step failed)
+        code = RESULTS.where(jnp.asarray(False), RESULTS.successful, stepper.failure)
+        sol = eqx.tree_at(lambda s: s.result, sol, code)
     return GraspSolution(
         sol,
         res,
@@ -587,6 +587,8 @@ def release_force(
                 break
         if not ok:
             message = f"equilibrium lost at pull {t:.4g} mm (the step could not be refined)"
+            if bool(stepper.failure == RESULTS.contact_outside_near_segments):
+                message += f": {RESULTS[stepper.failure]}"
             break
     f = np.asarray(forces)
     i = int(np.argmax(f)) if len(f) else 0

@@ -125,10 +125,16 @@ class AbstractRodModel(eqx.Module):
         k = self.n_stiff * (4 if self.tapered else 1)
         return q[self.n_head : self.n_head + k], q[self.n_head + k :]
 
+    @property
+    def has_contact_law(self) -> bool:
+        """Whether the rhs evaluates a contact law: a contact layout that is not the
+        law-free one of the far segments (`ContactSpec.free`)."""
+        return self.contact is not None and not self.contact.empty
+
     def contact_at(self, q, x, z, tx, tz, tau):
         """Contact force (fx, fz) and moment l_y per length at centreline point (x, z)
         with unit tangent (tx, tz); plain zeros without contact (no ops traced)."""
-        if self.contact is None or self.contact.empty:
+        if not self.has_contact_law:
             return 0.0, 0.0, 0.0
         return contact_load(self.contact, self.split(q)[1], x, z, tx, tz, tau)
 
@@ -142,7 +148,7 @@ class AbstractRodModel(eqx.Module):
     def translation_free(self) -> bool:
         """Without contact the flow commutes with translations: d(end)/d(start position)
         is the identity on the position and zero elsewhere, so it needs no integration."""
-        return self.contact is None or self.contact.empty
+        return not self.has_contact_law
 
     def tangent_basis(self, y):
         """(n_full, k) directions spanning every tangent of the start state y (position
@@ -357,7 +363,7 @@ class SpatialRod(AbstractRodModel):
         dp = _dot(R, v)
         dR = jnp.cross(R, u)  # row i of R hat(u) is (row i of R) x u
         f, mp = q[2:5], -jnp.cross(dp, n)
-        if self.contact is not None and not self.contact.empty:
+        if self.has_contact_law:
             fx, fz, ly = self.contact_at(q, y[0], y[2], R[0, 2], R[2, 2], tau)
             zero = jnp.zeros_like(ly)
             f, mp = f + jnp.stack([fx, zero, fz]), mp - jnp.stack([zero, ly, zero])

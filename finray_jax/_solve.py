@@ -271,11 +271,15 @@ def _newton_lean(
         r = st.r_next if contact else _natural_fn(y_t, (problem, lam))
         return r, st.factors, st.sign
 
+    def far_touch(gaps, order):
+        """Whether a segment outside the near ones of `order` touches (the contact law
+        left out there was not zero)."""
+        return jnp.min(gaps[order[problem.topo.contact.near :]]) < 0.0
+
     def choose(y, order):
-        """The segments nearest first at y, and whether a segment outside the near ones
-        of `order` touches (the contact law left out there was not zero)."""
+        """The segments nearest first at y (gaps along every segment), and `far_touch`."""
         gaps = problem.gaps(y.reshape(S, -1), lam)
-        return jnp.argsort(gaps), jnp.min(gaps[order[problem.topo.contact.near :]]) < 0.0
+        return jnp.argsort(gaps), far_touch(gaps, order)
 
     def body(st: _Newton):
         y_t = st.y - st.a * st.dy
@@ -322,8 +326,7 @@ def _newton_lean(
             # outside the near ones touches. Checked at a root, and wherever a far
             # segment's start lies inside an object (cheap: no integration); on contact
             # outside, choose again from there and go on while rounds are left.
-            far = st.order[problem.topo.contact.near :]
-            inside = jnp.min(problem.gaps(y.reshape(S, -1), lam, along=False)[far]) < 0.0
+            inside = far_touch(problem.gaps(y.reshape(S, -1), lam, along=False), st.order)
             keep = lambda y, o: (o, jnp.asarray(False))
             order, missed = lax.cond(conv | inside, choose, keep, y, st.order)
             again = missed & (st.rounds < max_rounds)

@@ -654,7 +654,7 @@ def _grasp_lines(g, name="") -> list[str]:
         f"  crossbeam force   x {_f(c.crossbeam_force[0])}, z {_f(c.crossbeam_force[2])} N "
         "(mean on the front beam)",
         f"  actuator force    {_f(c.actuator_force)} N",
-    ]
+    ] + ([f"  {fr.RESULTS[g.solution.result]}"] if g.status == "failed" else [])
 
 
 def _cmd_grasp(args) -> int:

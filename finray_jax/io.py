@@ -659,10 +659,13 @@ def _contact(value, r: _Reader) -> Contact:
     tbl = r.table(value, "contact", keys)
     args = {}
     for key in keys:
-        if key == "near_segments" and key in tbl:  # a count, or "all"
+        if key == "near_segments" and key in tbl:  # a count, or "all" (None)
             v = tbl[key]
-            near = isinstance(v, str) and r.string(v, "contact.near_segments", ("all",))
-            args[key] = None if near else r.integer(v, "contact.near_segments", minimum=1)
+            if isinstance(v, str):
+                r.string(v, "contact.near_segments", ("all",))
+                args[key] = None
+            else:
+                args[key] = r.integer(v, "contact.near_segments", minimum=1)
         elif key in tbl:
             args[key] = r.number(
                 tbl[key],

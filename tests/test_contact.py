@@ -201,6 +201,12 @@ def test_contact_beyond_the_near_segments_is_found():
     assert "Contact.near_segments" in f"{fr.RESULTS[solutions[8].result]}"
     assert solutions[16].converged
     np.testing.assert_allclose(solutions[16].unknowns, full.unknowns, rtol=0, atol=1e-9)
+    # A path solver that gives up keeps why (grasp and release_force report it).
+    finger = _with_near(base, 8)
+    stepper = _Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
+    _, _, ok = stepper.follow(finger.scale_loads, 0.0, 1.0, None, 1.0, 1.0)
+    assert not ok
+    assert stepper.failure == fr.RESULTS.contact_outside_near_segments
 
 
 # ---------------------------------------------------------------------------------------
