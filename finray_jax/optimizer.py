@@ -377,7 +377,7 @@ def _load_checkpoint(problem: OptimizeProblem, out_dir: str):
     path = os.path.join(out_dir, CHECKPOINT)
     csv_path = os.path.join(out_dir, PROGRESS_CSV)
     if not os.path.exists(path):
-        if os.path.exists(csv_path):
+        if _data_rows(csv_path) > 0:
             raise OptimizeError(
                 f"{out_dir} holds a {PROGRESS_CSV} without a {CHECKPOINT}: cannot continue it; "
                 "use another --out"
@@ -393,6 +393,52 @@ def _load_checkpoint(problem: OptimizeProblem, out_dir: str):
         hash_key="hash",
         source_key="source",
     )
+
+
+def _data_rows(csv_path: str) -> int:
+    """Complete rows after the header of a progress file (0 when it is missing). A run
+    stopped between writing the header and its first checkpoint left no row: it starts
+    afresh."""
+    if not os.path.exists(csv_path):
+        return 0
+    with open(csv_path, "rb") as fh:
+        lines = [ln for ln in fh.read().splitlines(keepends=True) if ln.endswith(b"\n")]
+    return max(len(lines) - 1, 0)
+
+
+def _stall(problem: OptimizeProblem, rows) -> int:
+    """Iterations in a row, up to the last, whose objective changed by at most
+    `tolerance` (relative) from the one before while feasible: `patience` of them stop the
+    run. rows: (objective, feasible) per iteration."""
+    stall, last = 0, None
+    for objective, feasible in rows:
+        stall = stall + 1 if (feasible and _unchanged(problem, objective, last)) else 0
+        last = objective
+    return stall
+
+
+def _unchanged(problem: OptimizeProblem, objective: float, last) -> bool:
+    return last is not None and abs(objective - last) <= problem.tolerance * abs(objective)
+
+
+def _progress_rows(csv_path: str, rows: int):
+    """(objective, feasible) of the first `rows` rows of a progress file."""
+    with open(csv_path, encoding="utf-8") as fh:
+        lines = fh.read().splitlines()[1 : rows + 1]
+    return [(float(c[1]), c[4] == "1") for c in (ln.split(",") for ln in lines)]
+
+
+def _stop_reason(problem: OptimizeProblem, state: dict) -> str:
+    """Why the run stops before its next iteration ("": it goes on), by the problem's
+    own iterations, tolerance and patience (they may change between runs)."""
+    if state["stall"] >= problem.patience:
+        return (
+            f"converged: objective changed by <= tolerance = {problem.tolerance} (relative) "
+            f"for {problem.patience} iterations"
+        )
+    if state["rows"] >= problem.iterations:
+        return f"reached iterations = {problem.iterations}"
+    return ""
 
 
 def _save_checkpoint(problem: OptimizeProblem, out_dir: str, state: dict) -> None:
@@ -499,9 +545,14 @@ def run_optimize(
             "reason": "",
         }
         fio._write_atomic(csv_path, header)
+        _save_checkpoint(problem, out_dir, state)
     else:
         state = ck["state"]
         _truncate_rows(csv_path, header, state["rows"])
+        if not state.get("failed", False):
+            # iterations, tolerance and patience may have changed since: decide anew.
+            state["stall"] = _stall(problem, _progress_rows(csv_path, state["rows"]))
+            state["done"], state["reason"] = False, ""
     setup.data = eqx.tree_at(
         lambda d: d.objective_scale, setup.data, jnp.asarray(state["scale"], jnp.float64)
     )
@@ -517,11 +568,12 @@ def run_optimize(
     step = jnp.asarray(state.get("step", np.zeros(len(lo)).tolist()), jnp.float64)
     z_prev = jnp.asarray(state.get("z_prev", state["z"]), jnp.float64)
     new_rows = 0
-    t0 = time.perf_counter() - state["elapsed"]
+    t0 = t_start - state["elapsed"]  # (every run's setup and compile count)
     while not state["done"]:
         k = state["rows"]
-        if k >= problem.iterations:
-            state["done"], state["reason"] = True, f"reached iterations = {problem.iterations}"
+        reason = _stop_reason(problem, state)
+        if reason:
+            state["done"], state["reason"] = True, reason
             break
         if max_iterations is not None and new_rows >= max_iterations:
             break
@@ -532,7 +584,7 @@ def run_optimize(
             if result is not None:
                 break
         if result is None:
-            state["done"] = True
+            state["done"] = state["failed"] = True
             state["reason"] = (
                 f"iteration {k}: no step (halved {MAX_HALVINGS} times) could be solved"
             )
@@ -566,9 +618,8 @@ def run_optimize(
                 "margins": margins,
             }
             fio._write_atomic(best_path, _best_toml(problem, x, k, objective))
-        last = state["last"]
-        small = last is not None and abs(objective - last) <= problem.tolerance * abs(objective)
-        state["stall"] = state["stall"] + 1 if (small and feasible) else 0
+        still = feasible and _unchanged(problem, objective, state["last"])
+        state["stall"] = state["stall"] + 1 if still else 0
         state["last"] = objective
         with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 counts and floats
             updates, opt_state = opt.update(grad, opt_state, z)
@@ -588,11 +639,7 @@ def run_optimize(
             elapsed=elapsed,
         )
         if state["stall"] >= problem.patience:
-            state["done"] = True
-            state["reason"] = (
-                f"converged: objective changed by <= tolerance = "
-                f"{problem.tolerance} (relative) for {problem.patience} iterations"
-            )
+            state["done"], state["reason"] = True, _stop_reason(problem, state)
         _save_checkpoint(problem, out_dir, state)
         new_rows += 1
         if progress is not None:

@@ -218,12 +218,12 @@ def _parse(doc, r, source, base_dir) -> Sweep:
 # --------------------------------------------------------------------------------------
 
 
-def _manifest(sweep: Sweep, finished: bool) -> dict:
+def _manifest(sweep: Sweep, finished: bool, source: str) -> dict:
     from . import __version__
 
     return {
         "sweep_hash": sweep.digest,
-        "sweep_file": os.path.abspath(sweep.source),
+        "sweep_file": source,
         "finger_file": sweep.finger_path,
         "n_designs": sweep.size,
         "columns": list(sweep.columns),
@@ -232,10 +232,12 @@ def _manifest(sweep: Sweep, finished: bool) -> dict:
     }
 
 
-def _check_manifest(sweep: Sweep, out_dir: str) -> None:
+def _check_manifest(sweep: Sweep, out_dir: str) -> str:
+    """Check that out_dir holds this sweep or none; the sweep file that started it (kept
+    in the manifest when another file with the same hash continues it)."""
     path = os.path.join(out_dir, MANIFEST)
     if os.path.exists(path):
-        fio._read_run_record(
+        record = fio._read_run_record(
             path,
             out_dir,
             SweepError,
@@ -245,8 +247,10 @@ def _check_manifest(sweep: Sweep, out_dir: str) -> None:
             hash_key="sweep_hash",
             source_key="sweep_file",
         )
-    elif os.path.exists(os.path.join(out_dir, RESULTS_CSV)):
+        return record.get("sweep_file") or os.path.abspath(sweep.source)
+    if os.path.exists(os.path.join(out_dir, RESULTS_CSV)):
         raise SweepError(f"{out_dir} holds a {RESULTS_CSV} without a {MANIFEST}: use another --out")
+    return os.path.abspath(sweep.source)
 
 
 def _fmt(x) -> str:
@@ -361,9 +365,10 @@ def run_sweep(
     """
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
-    _check_manifest(sweep, out_dir)
+    source = _check_manifest(sweep, out_dir)
     fio._write_atomic(
-        os.path.join(out_dir, MANIFEST), json.dumps(_manifest(sweep, False), indent=2) + "\n"
+        os.path.join(out_dir, MANIFEST),
+        json.dumps(_manifest(sweep, False, source), indent=2) + "\n",
     )
     csv_path = os.path.join(out_dir, RESULTS_CSV)
     designs = sweep.designs()
@@ -395,7 +400,8 @@ def run_sweep(
     data = read_results(csv_path)
     if done == sweep.size:
         fio._write_atomic(
-            os.path.join(out_dir, MANIFEST), json.dumps(_manifest(sweep, True), indent=2) + "\n"
+            os.path.join(out_dir, MANIFEST),
+            json.dumps(_manifest(sweep, True, source), indent=2) + "\n",
         )
         if plot:
             figure = os.path.join(out_dir, FIGURE)

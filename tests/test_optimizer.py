@@ -10,6 +10,7 @@ the holding-force gradient (envelope theorem), resuming an interrupted run and t
 """
 
 import csv
+import dataclasses
 import json
 import os
 
@@ -213,6 +214,35 @@ def test_progress_rows_after_the_checkpoint_are_dropped(tmp_path):
         O._truncate_rows(path, "iteration,loss\n", 1)
 
 
+def test_a_header_without_a_checkpoint_starts_afresh(tmp_path):
+    """Stopped between writing the progress header and the first checkpoint: nothing was
+    computed, so the run starts again; a data row without a checkpoint is refused."""
+    p = _load(_clamp_text(), tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "progress.csv").write_text("iteration,objective\n")
+    assert O._load_checkpoint(p, str(out)) is None
+    (out / "progress.csv").write_text("iteration,objective\n0,1.0\n")
+    with pytest.raises(O.OptimizeError, match="without a checkpoint.json"):
+        O._load_checkpoint(p, str(out))
+
+
+def test_the_stop_is_decided_by_the_current_settings(tmp_path):
+    """iterations, tolerance and patience may change between runs: a finished run goes on
+    when they are raised (the stall is counted again with the new tolerance)."""
+    p = _load(_clamp_text(iterations=6), tmp_path)
+    rows = [(10.0, True), (10.5, True), (10.5002, True), (10.5003, True), (10.5003, False)]
+    assert O._stall(p, rows[:4]) == 2 and O._stall(p, rows) == 0
+    p3 = dataclasses.replace(p, tolerance=1e-4, patience=2)
+    assert O._stop_reason(p3, {"rows": 4, "stall": O._stall(p3, rows[:4])}).startswith("converged")
+    p_tight = dataclasses.replace(p3, tolerance=1e-6)
+    assert O._stall(p_tight, rows[:4]) == 0
+    assert O._stop_reason(p_tight, {"rows": 4, "stall": 0}) == ""
+    assert O._stop_reason(p_tight, {"rows": 6, "stall": 0}) == "reached iterations = 6"
+    longer = dataclasses.replace(p_tight, iterations=8)
+    assert O._stop_reason(longer, {"rows": 6, "stall": 0}) == ""
+
+
 # ---------------------------------------------------------------------------------------
 # The clamp problem (l_c, l_s): one compiled objective for every run below
 # ---------------------------------------------------------------------------------------
@@ -314,6 +344,11 @@ def test_interrupted_run_resumes_without_losing_or_repeating_rows(loose, tmp_pat
         assert float(a["objective"]) == pytest.approx(float(b["objective"]), rel=1e-9)
         for d in p.design:
             assert float(a[d.name]) == pytest.approx(float(b[d.name]), rel=1e-9)
+    assert second.finished
+    # more iterations and patience (the same problem otherwise): the finished run goes on
+    longer = dataclasses.replace(p, iterations=8, patience=100)
+    third = O.run_optimize(longer, out, plot=False)
+    assert third.finished and [int(r["iteration"]) for r in _rows(third.csv)] == list(range(8))
     # another problem in the same directory is refused
     other = _load(_clamp_text(pressure=50.0), tmp_path, "other.toml")
     with pytest.raises(O.OptimizeError, match="holds another optimisation"):

@@ -8,6 +8,7 @@ size; about 15 s to compile on one core).
 import contextlib
 import io
 import json
+import os
 import pathlib
 import shutil
 
@@ -131,8 +132,13 @@ def test_interrupted_sweep_resumes_without_losing_or_duplicating_rows(
     # A kill in the middle of a write leaves a torn last line: it is dropped on resume.
     with open(out / "results.csv", "a") as fh:
         fh.write("4,10.0,0.8,0.0")
-    result = fsweep.run_sweep(sw, out, progress=None)
+    # Continued from a copy of the file (the same sweep): the manifest keeps the first.
+    copy = sweep_file.with_name("copy.toml")
+    copy.write_text(sweep_file.read_text())
+    result = fsweep.run_sweep(fsweep.load_sweep(copy), out, progress=None)
     assert result.finished and result.done == 6
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["sweep_file"] == os.path.abspath(sweep_file)
     _, rows = _csv(out / "results.csv")
     assert [r[0] for r in rows] == [str(i) for i in range(6)]
     np.testing.assert_array_equal([float(r[3]) for r in rows], reference.outputs["tip.dx"])
