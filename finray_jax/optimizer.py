@@ -617,7 +617,7 @@ def run_optimize(
                 "values": np.asarray(aux["values"]).tolist(),
                 "margins": margins,
             }
-            fio._write_atomic(best_path, _best_toml(problem, x, k, objective))
+            fio._write_atomic(best_path, _best_toml(problem, x, k, objective, anchors))
         still = feasible and _unchanged(problem, objective, state["last"])
         state["stall"] = state["stall"] + 1 if still else 0
         state["last"] = objective
@@ -675,13 +675,18 @@ def run_optimize(
     return run
 
 
-def _best_toml(problem: OptimizeProblem, x, iteration: int, objective: float) -> str:
+def _best_toml(problem: OptimizeProblem, x, iteration: int, objective: float, anchors) -> str:
+    k = ", ".join(f"{float(v)!r}" for v in np.asarray(anchors.stiffness))
     head = [
         f"# Best feasible design of {os.path.basename(problem.source)} (finray optimize), "
         f"iteration {iteration}:",
         f"# {problem.objective} = {objective!r} N ({problem.aggregate} over "
         f"{1 if problem.diameters is None else len(problem.diameters)} object(s)).",
         "# " + ", ".join(f"{n} = {v!r}" for n, v in zip(problem.names, np.asarray(x).tolist())),
+        f"# That figure holds the contact penalty stiffness of the initial design fixed (k = "
+        f"{k} N/mm^2, per object);",
+        "# `finray grasp` chooses k for this design anew, so its force can differ slightly",
+        "# ([contact] stiffness = k reproduces the figure).",
     ]
     text = fio.finger_to_toml(problem.designed(x), problem.settings)
     w = problem.direction

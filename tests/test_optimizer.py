@@ -22,6 +22,7 @@ import pytest
 
 import finray_jax as fr
 from finray_jax import _objective as OBJ
+from finray_jax import io as fio
 from finray_jax import optimizer as O
 from finray_jax.cli import main
 
@@ -367,6 +368,9 @@ def test_cli_optimize(loose, tmp_path, capsys):
         assert (out / name).is_file(), name
     res = json.loads((out / "result.json").read_text())
     assert res["rows"] == 2 and res["best"]["objective"] > res["initial_objective"]
+    best = (out / "best.toml").read_text()
+    assert "penalty stiffness of the initial design fixed (k = " in best
+    fio.load_finger(str(out / "best.toml"))  # (the comments keep it a finger file)
 
 
 # ---------------------------------------------------------------------------------------
