@@ -378,15 +378,24 @@ def validate_finger(finger: Finger) -> None:
             raise FingerError(f"{where} is not a PointLoad or DistributedLoad: {load!r}")
 
 
+def out_of_plane_load(finger: Finger) -> str | None:
+    """The first load with a part out of the x-z plane (a y force, an x or z moment), as
+    'loads[i].field = value', or None when every load acts in the plane."""
+    for i, load in enumerate(finger.loads):
+        if isinstance(load, PointLoad):
+            moment = _num(load.moment)
+            if abs(float(load.force[1])) > 0:
+                return f"loads[{i}].force = {_num(load.force).tolist()}"
+            if np.any(np.abs(moment[[0, 2]]) > 0):
+                return f"loads[{i}].moment = {moment.tolist()}"
+        elif abs(float(load.total_force[1])) > 0:
+            return f"loads[{i}].total_force = {_num(load.total_force).tolist()}"
+    return None
+
+
 def loads_in_plane(finger: Finger) -> bool:
     """True when every load acts in the x-z plane (no y force, no x or z moment)."""
-    for load in finger.loads:
-        if isinstance(load, PointLoad):
-            if abs(float(load.force[1])) > 0 or np.any(np.abs(_num(load.moment)[[0, 2]]) > 0):
-                return False
-        elif abs(float(load.total_force[1])) > 0:
-            return False
-    return True
+    return out_of_plane_load(finger) is None
 
 
 def _validate_contact(finger: Finger) -> None:

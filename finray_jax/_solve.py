@@ -14,7 +14,15 @@ from jax import lax
 from . import _banded
 from ._assembly import Problem, build_topology, segment_table
 from ._contact import check_friction
-from ._finger import BACK, FRONT, Finger, loads_in_plane, validate_finger
+from ._finger import (
+    BACK,
+    FRONT,
+    Finger,
+    FingerError,
+    loads_in_plane,
+    out_of_plane_load,
+    validate_finger,
+)
 from ._geometry import arc_point, geometry
 from ._rod import Integrator, apply_flow_jacobians, flow_jacobians
 from ._rotation import log_so3, planar_frame
@@ -90,6 +98,17 @@ class SolverOptions(eqx.Module):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise ValueError(f"SolverOptions.{name} must be a positive number, got {v!r}")
+        for name in ("rtol", "atol"):  # (on scaled unknowns and residuals, which are O(1))
+            if getattr(self, name) >= 1.0:
+                raise ValueError(
+                    f"SolverOptions.{name} = {getattr(self, name)!r}: must be below 1 (the "
+                    "default is 1e-10; a tolerance of order 1 accepts any iterate)"
+                )
+        if not self.min_arc_step <= self.initial_arc_step <= self.max_arc_step:
+            raise ValueError(
+                f"SolverOptions: need min_arc_step <= initial_arc_step <= max_arc_step, got "
+                f"{self.min_arc_step!r}, {self.initial_arc_step!r}, {self.max_arc_step!r}"
+            )
         cap = self.max_rotation_step
         if cap is not None and not (isinstance(cap, (int, float)) and cap > 0):
             raise ValueError(
@@ -822,7 +841,14 @@ def prepare(finger: Finger, mode: str, topology=None):
             "cannot build the topology from traced values: pass topology=finray_jax."
             "topology_of(example_finger, mode) when solving under jit or vmap"
         )
-    return build_topology(finger, resolve_mode(finger, mode))
+    mode = resolve_mode(finger, mode)
+    off = out_of_plane_load(finger) if mode == "planar" else None
+    if off is not None:
+        raise FingerError(
+            f"{off}: acts out of the x-z plane, which mode 'planar' cannot carry (it would be "
+            "dropped); use mode 'spatial' or 'auto'"
+        )
+    return build_topology(finger, mode)
 
 
 def topology_of(finger: Finger, mode: str = "auto"):

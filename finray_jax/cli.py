@@ -588,7 +588,7 @@ def _cmd_optimize(args) -> int:
         print(f"wrote {path}")
     if not run.finished:
         print("not finished: run the same command to continue")
-    return EXIT_OK
+    return EXIT_FAILED if run.failed else EXIT_OK
 
 
 def _progress(msg):

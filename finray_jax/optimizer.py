@@ -371,6 +371,7 @@ class OptimizeRun:
     csv: str
     best_toml: str | None
     figures: tuple
+    failed: bool = False  # stopped because an iteration could not be solved
 
 
 def _load_checkpoint(problem: OptimizeProblem, out_dir: str):
@@ -666,6 +667,7 @@ def run_optimize(
         csv=csv_path,
         best_toml=best_path if state["best"] is not None else None,
         figures=figures,
+        failed=bool(state.get("failed", False)),
     )
     if state["done"]:
         _write_result(problem, run, out_dir, time.perf_counter() - t_start)

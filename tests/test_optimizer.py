@@ -228,6 +228,21 @@ def test_a_header_without_a_checkpoint_starts_afresh(tmp_path):
         O._load_checkpoint(p, str(out))
 
 
+def test_cli_exit_code_of_a_failed_optimisation(tmp_path, monkeypatch, capsys):
+    """A run that stopped because an iteration could not be solved exits 3, not 0."""
+    reason = "iteration 1: no step (halved 6 times) could be solved"
+
+    def stopped(problem, out_dir, **kw):
+        csv_path = str(tmp_path / "progress.csv")
+        return O.OptimizeRun(1, True, reason, 1.0, None, csv_path, None, (), failed=True)
+
+    monkeypatch.setattr(O, "run_optimize", stopped)
+    path = tmp_path / "opt.toml"
+    path.write_text(_clamp_text())
+    assert main(["optimize", str(path), "--out", str(tmp_path / "out")]) == 3
+    assert reason in capsys.readouterr().out
+
+
 def test_the_stop_is_decided_by_the_current_settings(tmp_path):
     """iterations, tolerance and patience may change between runs: a finished run goes on
     when they are raised (the stall is counted again with the new tolerance)."""

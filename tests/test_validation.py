@@ -377,6 +377,8 @@ def test_integrator_backend():
         ("initial_arc_step", "big"),
         ("reuse_jacobian_below", 0.0),
         ("reuse_jacobian", "yes"),
+        ("rtol", 1e6),  # (accepted any iterate: a "converged" wrong answer)
+        ("atol", 1.0),
     ],
 )
 def test_solver_options_tolerances(field, value):
@@ -388,6 +390,21 @@ def test_solver_options_tolerances(field, value):
 def test_solver_options_counts(field, value):
     with pytest.raises(ValueError, match=f"SolverOptions.{field}.*{re.escape(repr(value))}"):
         fr.SolverOptions(**{field: value})
+
+
+def test_solver_options_arc_steps_in_order():
+    with pytest.raises(ValueError, match=r"min_arc_step <= initial_arc_step <= max_arc_step.*1.0"):
+        fr.SolverOptions(min_arc_step=1.0, max_arc_step=0.1)
+
+
+def test_planar_mode_refuses_an_out_of_plane_load(finger):
+    """Planar mode would drop a y force or an x / z moment: asked for, it is refused."""
+    y_force = fr.PointLoad(beam=0, s=60.0, force=(0.05, 0.05, 0.0))
+    twist = fr.PointLoad(beam=0, s=60.0, force=(0.05, 0.0, 0.0), moment=(0.0, 0.0, 1.0))
+    for load, frag in ((y_force, "loads[0].force"), (twist, "loads[0].moment")):
+        f = dataclasses.replace(finger, loads=(load,))
+        _raises(f, frag, "mode 'planar'", func=lambda f: fr.topology_of(f, "planar"))
+        assert fr.topology_of(f).mode == "spatial"  # (auto)
 
 
 def test_cantilever_arguments():
