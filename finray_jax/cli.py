@@ -113,6 +113,33 @@ def _finite_float(text: str) -> float:
     return x
 
 
+def _nonnegative_float(text: str) -> float:
+    x = _finite_float(text)
+    if x < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return x
+
+
+def _positive_float(text: str) -> float:
+    x = _finite_float(text)
+    if not x > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return x
+
+
+def _figure_path(text: str) -> str:
+    """A figure file name whose extension matplotlib can write (checked before solving)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    ext = os.path.splitext(text)[1].lower().lstrip(".")
+    if ext not in kinds:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: unknown figure format {ext!r}; use one of {', '.join(sorted(kinds))}"
+        )
+    return text
+
+
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="finray",
@@ -130,7 +157,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("finger", metavar="FINGER.toml")
     s.add_argument("--out", metavar="RESULT.json", help="write the solution as JSON")
-    s.add_argument("--plot", metavar="SHAPE.png", help="save a figure (shape and n(s), m(s))")
+    s.add_argument(
+        "--plot",
+        type=_figure_path,
+        metavar="SHAPE.png",
+        help="save a figure (shape and n(s), m(s))",
+    )
     s.add_argument(
         "--load-scale",
         type=_finite_float,
@@ -154,7 +186,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     lim.add_argument("finger", metavar="FINGER.toml")
     lim.add_argument("--out", metavar="LIMIT.json", help="write the result as JSON")
-    lim.add_argument("--plot", metavar="SHAPE.png", help="save a figure of the limit state")
+    lim.add_argument(
+        "--plot", type=_figure_path, metavar="SHAPE.png", help="save a figure of the limit state"
+    )
     lim.add_argument("--mode", choices=fio.MODES, default=None)
 
     v = sub.add_parser(
@@ -187,11 +221,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     gr.add_argument("finger", metavar="FINGER.toml")
     gr.add_argument("--out", metavar="RESULT.json", help="write the grasp as JSON")
-    gr.add_argument("--plot", metavar="GRASP.png", help="save a figure of the grasp")
+    gr.add_argument(
+        "--plot", type=_figure_path, metavar="GRASP.png", help="save a figure of the grasp"
+    )
     gr.add_argument("--release", action="store_true", help="also trace the release force")
     gr.add_argument(
         "--friction",
-        type=_finite_float,
+        type=_nonnegative_float,
         default=None,
         metavar="MU",
         help="friction coefficient for the release trace (default: [contact])",
@@ -207,8 +243,8 @@ def _parser() -> argparse.ArgumentParser:
         "DIR/compare.json.",
     )
     cmp_.add_argument("--out", metavar="DIR", default=".")
-    cmp_.add_argument("--closing", type=_finite_float, default=6.0, metavar="MM")
-    cmp_.add_argument("--friction", type=_finite_float, default=0.0, metavar="MU")
+    cmp_.add_argument("--closing", type=_positive_float, default=6.0, metavar="MM")
+    cmp_.add_argument("--friction", type=_nonnegative_float, default=0.0, metavar="MU")
     cmp_.add_argument(
         "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
     )
@@ -220,7 +256,7 @@ def _parser() -> argparse.ArgumentParser:
         "length for cylinders of increasing size. Writes DIR/clamp_study.png and .json.",
     )
     cs.add_argument("--out", metavar="DIR", default=".")
-    cs.add_argument("--closing", type=_finite_float, default=6.0, metavar="MM")
+    cs.add_argument("--closing", type=_positive_float, default=6.0, metavar="MM")
     cs.add_argument("--finger", metavar="FINGER.toml", default=None)
 
     sw = sub.add_parser(

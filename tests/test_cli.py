@@ -183,6 +183,20 @@ def test_validate_bad_file(tmp_path, capsys):
     assert captured.err.count("\n") == 1
 
 
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["solve", REF_A, "--plot", "shape.xyz"], "--plot: 'shape.xyz': unknown figure format"),
+        (["grasp", REF_A, "--release", "--friction", "-0.5"], "--friction: must be >= 0"),
+        (["compare", "--closing", "0"], "--closing: must be > 0, got '0'"),
+        (["clamp-study", "--closing", "-6"], "--closing: must be > 0, got '-6'"),
+    ],
+)
+def test_bad_options_are_refused_before_any_solve(argv, message):
+    code, out, err = run(argv)
+    assert code == 1 and out == "" and message in err and "Traceback" not in err
+
+
 def test_solve_bad_file(tmp_path, capsys):
     path = _bad_file(tmp_path)
     code = cli.main(["solve", str(path), "--out", str(tmp_path / "r.json")])
