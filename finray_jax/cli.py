@@ -17,6 +17,7 @@ import numpy as np
 import finray_jax as fr
 
 from . import io as fio
+from .design import DesignError
 
 EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
 STATUS_EXIT = {"converged": EXIT_OK, "beyond_limit_load": EXIT_BEYOND, "failed": EXIT_FAILED}
@@ -869,7 +870,7 @@ def main(argv=None) -> int:
         if args.command != "validate":
             enable_compilation_cache()
         return COMMANDS[args.command](args)
-    except (UserError, fio.FingerFileError, fr.FingerError) as e:
+    except (UserError, fio.FingerFileError, fr.FingerError, DesignError) as e:
         print(f"finray: error: {e}", file=sys.stderr)
         return EXIT_USER
     except OSError as e:  # e.g. an output path that cannot be written

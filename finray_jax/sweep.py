@@ -23,7 +23,7 @@ from . import io as fio
 from ._finger import Finger
 from ._solve import resolve_mode
 from .batch import iter_batch
-from .design import OUTPUTS, DesignError, check_design_names
+from .design import OUTPUTS, DesignError, check_design_names, get_design
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
@@ -162,6 +162,7 @@ def _parse(doc, r, source, base_dir) -> Sweep:
         name = r.string(tbl["name"], f"{p}.name")
         try:
             check_design_names(finger, [name], scalar=True)
+            get_design(finger, [name])  # (e.g. a support length needs a support)
         except DesignError as e:
             raise r.error(f"{p}.name", str(e), name) from None
         if name in (a.name for a in axes):

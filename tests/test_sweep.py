@@ -240,6 +240,11 @@ def test_another_sweep_in_the_same_directory_is_refused(sweep_file, tmp_path):
             r"chunksize = 4: unknown key at the top level \(did you mean 'chunk_size'\?\)",
         ),
         ('kind = "grid"', 'kind = "random"', r"sampling.n: missing required key"),
+        (
+            'name = "adaptor.back_clamp_length"',
+            'name = "adaptor.support_length"',
+            r"design\[0\].name = \"adaptor.support_length\": .*has no support",
+        ),
     ],
 )
 def test_bad_sweep_files(sweep_file, old, new, match):
