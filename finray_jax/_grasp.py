@@ -19,7 +19,7 @@ import numpy as np
 
 from ._contact import check_friction, default_stiffness, penalty, smoothing, with_friction
 from ._finger import BACK, FRONT, Finger, FingerError
-from ._objects import _safe_norm
+from ._objects import HalfPlane, _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import SolverOptions, _direct_core, prepare, resolve_mode, undeformed_unknowns
@@ -293,14 +293,14 @@ class _Stepper:
             self.failure = sol.result
         return sol, ok
 
-    def follow(self, at, t0, t1, init, first_step, min_step, prev=None):
+    def follow(self, at, t0, t1, init, first_step, min_step, prev=None, max_step=np.inf):
         """Equilibria from parameter t0 to t1 (finger = at(t)), each started from a linear
         extrapolation of the last two; returns (t, solution, ok) of the last accepted
-        point. Steps grow after easy solves and halve after failures.
+        point. Steps grow after easy solves (up to max_step) and halve after failures.
 
         prev: (t, unknowns) of the path's point before `init` (continuing a path that an
         earlier call followed: its `self.prev`), so the first step is extrapolated too."""
-        t, sol, h = t0, init, first_step
+        t, sol, h = t0, init, min(first_step, max_step)
         while t < t1 - 1e-12:
             t_try = min(t + h, t1)
             guess = None if sol is None else sol.unknowns
@@ -310,7 +310,8 @@ class _Stepper:
             if ok:
                 if sol is not None:
                     prev = (t, sol.unknowns)
-                t, sol, h = t_try, trial, min(_growth(int(trial.iterations)) * h, t1 - t0)
+                h = min(_growth(int(trial.iterations)) * h, t1 - t0, max_step)
+                t, sol = t_try, trial
             else:
                 h = 0.5 * h
                 if h < min_step:
@@ -411,10 +412,11 @@ def grasp(
     def at(t):
         return _moved(finger, -t * w)
 
+    cap = _closing_step_cap(finger)
     if closing is not None:
-        t, sol, ok = stepper.follow(at, 0.0, d, None, d / 8.0, 1e-4 * max(d, 1.0))
+        t, sol, ok = stepper.follow(at, 0.0, d, None, d / 8.0, 1e-4 * max(d, 1.0), max_step=cap)
     else:
-        t, sol, ok = _find_closing(stepper, at, w, fa)
+        t, sol, ok = _find_closing(stepper, at, w, fa, cap)
     if sol is None:
         sol, _ = stepper.solve(at(0.0), None)
     res = contact_result(at(t), sol, w)
@@ -475,14 +477,26 @@ def _resolve_near(g: GraspSolution, moved: Finger, integrator, options):
     return sol, contact_result(moved, sol, jnp.asarray(g.direction))
 
 
-def _find_closing(stepper, at, w, target):
+def _closing_step_cap(finger: Finger) -> float:
+    """The longest closing step (mm): half the depth of the shallowest object below its
+    centre (a circle's radius, an ellipse's smaller semi-axis, ...), so that no step
+    carries an object through a beam (a half-plane has no such limit)."""
+    depths = [  # (from the outline: the signed distance is exact only near the surface)
+        np.min(np.linalg.norm(o.outline(400) - np.asarray(o.center), axis=-1))
+        for o in finger.objects
+        if not isinstance(o, HalfPlane)
+    ]
+    return 0.5 * min(depths) if depths else np.inf
+
+
+def _find_closing(stepper, at, w, target, max_step=np.inf):
     """Closing displacement at which the actuator force equals `target` (secant on a
-    bracket, each trial warm started)."""
+    bracket, each trial warm started; path steps of at most max_step)."""
     lo, f_lo, sol_lo = 0.0, 0.0, None
     hi, sol = 1.0, None
     # Grow the bracket until the actuator force exceeds the target.
     while True:
-        t, sol, ok = stepper.follow(at, lo, hi, sol_lo, hi - lo, 1e-4)
+        t, sol, ok = stepper.follow(at, lo, hi, sol_lo, hi - lo, 1e-4, max_step=max_step)
         if not ok:
             return t, sol, False
         f_hi = float(contact_result(at(hi), sol, w).actuator_force)

@@ -451,10 +451,19 @@ def _cmd_solve(args) -> int:
     return STATUS_EXIT[sol.status]
 
 
+def _load_vector(load):
+    """A load's force and moment as one vector (a distributed load: its total force)."""
+    if isinstance(load, fr.PointLoad):
+        return np.concatenate([np.asarray(load.force), np.asarray(load.moment)])
+    return np.asarray(load.total_force)
+
+
 def _cmd_limit(args) -> int:
     finger, settings = fio.load_finger(args.finger)
     if not finger.loads:
         raise UserError(f"{args.finger}: no [[loads]]: the limit load is a factor on the loads")
+    if not any(np.any(np.asarray(_load_vector(ld)) != 0.0) for ld in finger.loads):
+        raise UserError(f"{args.finger}: every load is zero: no factor on them can fold the finger")
     kwargs = settings.solve_kwargs()
     if args.mode is not None:
         kwargs["mode"] = args.mode

@@ -197,6 +197,15 @@ def test_bad_options_are_refused_before_any_solve(argv, message):
     assert code == 1 and out == "" and message in err and "Traceback" not in err
 
 
+def test_limit_of_zero_loads_is_refused(tmp_path):
+    text = (ROOT / "examples" / "ref_a.toml").read_text()
+    assert "force = [0.05, 0.0, 0.0]" in text
+    path = tmp_path / "zero.toml"
+    path.write_text(text.replace("force = [0.05, 0.0, 0.0]", "force = [0.0, 0.0, 0.0]"))
+    code, out, err = run(["limit", str(path)])
+    assert code == 1 and "every load is zero" in err and str(path) in err
+
+
 def test_solve_bad_file(tmp_path, capsys):
     path = _bad_file(tmp_path)
     code = cli.main(["solve", str(path), "--out", str(tmp_path / "r.json")])

@@ -1,6 +1,8 @@
 """Contact: objects' signed distances, the penalty law, closed forms, equilibrium,
 symmetry, the unilateral support, bad input and the holding force."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -11,7 +13,7 @@ from helpers import global_balance
 import finray_jax as fr
 import finray_jax.io
 from finray_jax._contact import penalty
-from finray_jax._grasp import _Stepper
+from finray_jax._grasp import _closing_step_cap, _Stepper
 from finray_jax._solve import _direct_core
 
 # ---------------------------------------------------------------------------------------
@@ -530,3 +532,25 @@ def test_release_trace_follows_one_branch_whatever_the_step(grasps):
     at = lambda tr: np.asarray([tr.force[np.argmin(np.abs(tr.pull - p))] for p in common])
     scale = float(np.max(np.abs(fine.force)))
     np.testing.assert_allclose(at(coarse), at(fine), rtol=0, atol=1e-6 * scale)
+
+
+def test_closing_steps_never_carry_an_object_through_a_beam():
+    """A closing step is at most half the object's depth below its centre: a huge closing
+    (1000 mm on Finger-1's 18 mm cylinder took 125 mm steps) no longer jumps the object
+    clean through the finger into a contact-free 'converged' state."""
+    finger = fr.ref_finger_a("L1")
+    cyl = dataclasses.replace(finger, objects=(fr.Circle((30.0, 60.0), 9.0),))
+    assert _closing_step_cap(cyl) == pytest.approx(4.5)
+    ell = dataclasses.replace(finger, objects=(fr.Ellipse((30.0, 60.0), (9.0, 3.0), 0.3),))
+    assert _closing_step_cap(ell) == pytest.approx(1.5, rel=1e-3)  # (from 400 outline points)
+    wall = dataclasses.replace(finger, objects=(fr.HalfPlane((30.0, 0.0), (-1.0, 0.0)),))
+    assert _closing_step_cap(wall) == np.inf
+
+    class Easy:  # a solve that always converges in one iteration
+        iterations, unknowns = 1, np.zeros(1)
+
+    ts = []
+    stepper = object.__new__(_Stepper)
+    stepper.solve = lambda at_t, guess: (ts.append(at_t), (Easy(), True))[1]
+    t, _, ok = _Stepper.follow(stepper, lambda t: t, 0.0, 1000.0, None, 125.0, 0.1, max_step=4.5)
+    assert ok and t == 1000.0 and np.max(np.diff([0.0] + ts)) <= 4.5 + 1e-9
