@@ -451,6 +451,26 @@ def _cmd_solve(args) -> int:
     return STATUS_EXIT[sol.status]
 
 
+_DIRECTORY_OUTPUTS = ("demo", "compare", "clamp-study", "sweep", "optimize")
+
+
+def _check_output_paths(args) -> None:
+    """Refuse, before any work, an --out directory that is a file, and an output file
+    whose folder is a file."""
+    out = getattr(args, "out", None)
+    if out and args.command in _DIRECTORY_OUTPUTS:
+        if os.path.exists(out) and not os.path.isdir(out):
+            raise UserError(f"--out {out}: is a file, not a directory")
+    files = [("--out", out)] if out and args.command not in _DIRECTORY_OUTPUTS else []
+    files += [("--plot", args.plot)] if getattr(args, "plot", None) else []
+    for option, path in files:
+        folder = os.path.dirname(path) or "."
+        if os.path.exists(folder) and not os.path.isdir(folder):
+            raise UserError(f"{option} {path}: {folder} is a file, not a directory")
+        if os.path.isdir(path):
+            raise UserError(f"{option} {path}: is a directory, not a file name")
+
+
 def _load_vector(load):
     """A load's force and moment as one vector (a distributed load: its total force)."""
     if isinstance(load, fr.PointLoad):
@@ -876,6 +896,7 @@ def main(argv=None) -> int:
             args = parser.parse_args(argv)
         except SystemExit as e:  # --help, --version
             return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USER
+        _check_output_paths(args)
         if args.command != "validate":
             enable_compilation_cache()
         return COMMANDS[args.command](args)

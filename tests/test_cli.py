@@ -197,6 +197,19 @@ def test_bad_options_are_refused_before_any_solve(argv, message):
     assert code == 1 and out == "" and message in err and "Traceback" not in err
 
 
+def test_output_paths_through_a_file_are_refused_before_any_solve(tmp_path):
+    a_file = tmp_path / "taken"
+    a_file.write_text("")
+    for argv, message in (
+        (["solve", REF_A, "--out", str(a_file / "r.json")], "is a file, not a directory"),
+        (["solve", REF_A, "--plot", str(a_file / "s.png")], "is a file, not a directory"),
+        (["solve", REF_A, "--out", str(tmp_path)], "is a directory, not a file name"),
+        (["compare", "--out", str(a_file)], f"--out {a_file}: is a file, not a directory"),
+    ):
+        code, out, err = run(argv)
+        assert code == 1 and out == "" and message in err, (argv, err)
+
+
 def test_limit_of_zero_loads_is_refused(tmp_path):
     text = (ROOT / "examples" / "ref_a.toml").read_text()
     assert "force = [0.05, 0.0, 0.0]" in text
