@@ -398,6 +398,26 @@ def loads_in_plane(finger: Finger) -> bool:
     return out_of_plane_load(finger) is None
 
 
+def check_mode_carries_loads(finger: Finger, mode: str) -> None:
+    """Raise FingerError when `mode` is "planar" and a load acts out of the plane (planar
+    mode would drop that part of it)."""
+    off = out_of_plane_load(finger) if mode == "planar" else None
+    if off is not None:
+        raise FingerError(
+            f"{off}: acts out of the x-z plane, which mode 'planar' cannot carry (it would be "
+            "dropped); use mode 'spatial' or 'auto'"
+        )
+
+
+def loads_are_zero(finger: Finger) -> bool:
+    """True when no load has a non-zero force or moment (or there are no loads)."""
+    for load in finger.loads:
+        parts = (load.force, load.moment) if isinstance(load, PointLoad) else (load.total_force,)
+        if any(np.any(_num(v) != 0.0) for v in parts):
+            return False
+    return True
+
+
 def _validate_contact(finger: Finger) -> None:
     c = finger.contact
     if c.stiffness is not None:

@@ -18,9 +18,8 @@ from ._finger import (
     BACK,
     FRONT,
     Finger,
-    FingerError,
+    check_mode_carries_loads,
     loads_in_plane,
-    out_of_plane_load,
     validate_finger,
 )
 from ._geometry import arc_point, geometry
@@ -842,12 +841,7 @@ def prepare(finger: Finger, mode: str, topology=None):
             "topology_of(example_finger, mode) when solving under jit or vmap"
         )
     mode = resolve_mode(finger, mode)
-    off = out_of_plane_load(finger) if mode == "planar" else None
-    if off is not None:
-        raise FingerError(
-            f"{off}: acts out of the x-z plane, which mode 'planar' cannot carry (it would be "
-            "dropped); use mode 'spatial' or 'auto'"
-        )
+    check_mode_carries_loads(finger, mode)
     return build_topology(finger, mode)
 
 

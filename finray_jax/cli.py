@@ -17,6 +17,7 @@ import numpy as np
 import finray_jax as fr
 
 from . import io as fio
+from ._finger import loads_are_zero
 from .design import DesignError
 
 EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
@@ -471,18 +472,11 @@ def _check_output_paths(args) -> None:
             raise UserError(f"{option} {path}: is a directory, not a file name")
 
 
-def _load_vector(load):
-    """A load's force and moment as one vector (a distributed load: its total force)."""
-    if isinstance(load, fr.PointLoad):
-        return np.concatenate([np.asarray(load.force), np.asarray(load.moment)])
-    return np.asarray(load.total_force)
-
-
 def _cmd_limit(args) -> int:
     finger, settings = fio.load_finger(args.finger)
     if not finger.loads:
         raise UserError(f"{args.finger}: no [[loads]]: the limit load is a factor on the loads")
-    if not any(np.any(np.asarray(_load_vector(ld)) != 0.0) for ld in finger.loads):
+    if loads_are_zero(finger):
         raise UserError(f"{args.finger}: every load is zero: no factor on them can fold the finger")
     kwargs = settings.solve_kwargs()
     if args.mode is not None:

@@ -639,9 +639,7 @@ def run_optimize(
             opt_state=[np.asarray(v).tolist() for v in jax.tree_util.tree_leaves(opt_state)],
             elapsed=elapsed,
         )
-        if state["stall"] >= problem.patience:
-            state["done"], state["reason"] = True, _stop_reason(problem, state)
-        _save_checkpoint(problem, out_dir, state)
+        _save_checkpoint(problem, out_dir, state)  # (the loop's head decides the stop)
         new_rows += 1
         if progress is not None:
             m = ", ".join(f"{c} {margins[c]:.3g}" for c in cons)
