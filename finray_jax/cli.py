@@ -1,12 +1,14 @@
 """The `finray` command line: solve, limit, validate, demo, sweep and optimize. See docs/cli.md.
 
 Exit codes: 0 converged (or limit found, or file valid), 1 user error (bad or missing
-file, bad option), 2 the load lies beyond the finger's limit load, 3 the solve failed.
+file, bad option), 2 the load lies beyond the finger's limit load, 3 the solve failed (a
+sweep: it finished and no design converged), 130 interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import math
 import os
 import sys
@@ -596,9 +598,29 @@ def _cmd_sweep(args) -> int:
     print(f"wrote {run.csv} ({run.done} of {run.total} designs: {counts or 'none yet'})")
     if run.figure:
         print(f"wrote {run.figure}")
-    else:
+    elif not run.finished:
         print("not finished: run the same command to continue")
+    if run.finished and run.converged == 0:
+        print(f"finray: {_no_design_converged(run)}", file=sys.stderr)
+        return EXIT_FAILED
     return EXIT_OK
+
+
+def _no_design_converged(run) -> str:
+    """The stderr line of a finished sweep in which no design converged: the counts and
+    the most frequent reason (the CSV's reason column)."""
+    from . import sweep as fsweep
+
+    counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))
+    text = (
+        f"no design of the sweep converged ({counts or 'no rows'}); see the reason column "
+        f"of {run.csv}"
+    )
+    reasons = [str(r) for r in fsweep.read_results(run.csv).get("reason", ()) if r]
+    if reasons:  # (ties: the reason of the earliest row)
+        top, n = collections.Counter(reasons).most_common(1)[0]
+        text += f"; most frequent ({n} of {run.done}): {top}"
+    return text
 
 
 def _cmd_optimize(args) -> int:

@@ -4,33 +4,44 @@ solve every design with `solve_batch`, and write one CSV row per design, chunk b
 Format reference: docs/sweep-format.md. The CSV is written append-only with a flush and
 an fsync after every chunk, next to a manifest holding the sweep's hash: running the same
 sweep into the same directory again continues after the last complete row (an interrupt
-loses at most the chunk being solved); a different sweep there is refused.
+loses at most the chunk being solved); a different sweep there is refused. Every row
+carries a `reason`: empty when the design converged, else the validation error of an
+invalid design or the solver's result and message.
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import functools
 import hashlib
+import io
 import json
 import math
 import os
 import time
 from collections.abc import Callable
 
+import equinox as eqx
+import jax
 import numpy as np
 
 from . import io as fio
-from ._finger import Finger
+from ._finger import Finger, FingerError, beam_name, validate_finger
+from ._solution import RESULTS
 from ._solve import resolve_mode
-from .batch import iter_batch
-from .design import OUTPUTS, DesignError, check_design_names, get_design
+from .batch import INVALID, iter_batch
+from .design import OUTPUTS, DesignError, check_design_names, get_design, set_design
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
 SAMPLINGS = ("grid", "random")
 RESULTS_CSV, MANIFEST, FIGURE = "results.csv", "manifest.json", "sweep.png"
-STATUS_COLUMNS = ("status", "iterations", "max_residual")
-_FORMAT = 1  # bump when the meaning of a sweep file or its CSV changes
+STATUS_COLUMNS = ("status", "iterations", "max_residual", "reason")
+# Bump when the meaning of a sweep file changes (it keys the sweep's hash). A change of
+# the CSV's layout alone is handled when a sweep continues (see `_resume`: a CSV written
+# before the `reason` column existed is upgraded in place), so the hash stays.
+_FORMAT = 1
 
 
 class SweepError(fio.FingerFileError):
@@ -258,23 +269,154 @@ def _fmt(x) -> str:
     return repr(float(x)) if math.isfinite(float(x)) else "nan"
 
 
-def _resume(sweep: Sweep, csv_path: str, designs) -> int:
+def _line(cells) -> str:
+    """One CSV line, a cell quoted where it needs it (a reason may hold commas)."""
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow(cells)
+    return buf.getvalue()
+
+
+def _fields(line: str) -> list[str]:
+    return next(csv.reader([line.rstrip("\n")]), [])
+
+
+def _complete_lines(data: bytes) -> list[str]:
+    """The lines of a CSV that ended (a torn last line is left out), each with its newline."""
+    keep = data[: data.rfind(b"\n") + 1].decode("utf-8")
+    return [line + "\n" for line in keep.split("\n")[:-1]]
+
+
+# --------------------------------------------------------------------------------------
+# Why a design did not converge (the `reason` column)
+# --------------------------------------------------------------------------------------
+
+
+def _one_line(text) -> str:
+    return " ".join(str(text).split())
+
+
+_RESULT_NAMES = {int(item._value): name for name, item in RESULTS._name_to_item.items()}
+
+
+def _solver_reason(code: int) -> str:
+    """The reason of a solved design: "" when it converged, else the solver's result and
+    the first sentence of its message (e.g. "nonlinear_divergence: Nonlinear solve
+    diverged.")."""
+    code = int(code)
+    if code == int(RESULTS.successful._value):
+        return ""
+    text = _one_line(RESULTS._index_to_message[code])
+    end = text.find(". ")
+    return f"{_RESULT_NAMES.get(code, code)}: {text if end < 0 else text[: end + 1]}"
+
+
+# The reason of an old row (written before the reason column) whose solver result was
+# not recorded.
+_UNRECORDED = (
+    "not recorded (this row was written by an older finray_jax, before results.csv had a "
+    "reason column; run the sweep into a new --out to see the solver's message)"
+)
+
+
+@eqx.filter_jit
+def _designed(finger: Finger, values):
+    return set_design(finger, values)
+
+
+def _event_name(kind: str, index: int) -> str:
+    return {
+        "cb": f"crossbeam {index}",
+        "point": f"loads[{index}]",
+        "dist_start": f"the start of loads[{index}]",
+        "dist_end": f"the end of loads[{index}]",
+    }.get(kind, "the support's end (adaptor.support_length)")
+
+
+class _Diagnosis:
+    """Why a design was not solved (status "invalid"): the finger validation's message
+    (`validate_finger`), else the change of the base finger's topology."""
+
+    def __init__(self, sweep: Sweep):
+        self.sweep = sweep
+
+    @functools.cached_property
+    def base_events(self):
+        from ._assembly import build_topology
+
+        return build_topology(self.sweep.finger, self.sweep.mode).events
+
+    def __call__(self, values: dict) -> str:
+        vals = {k: np.asarray(v, dtype=np.float64) for k, v in values.items()}
+        try:
+            finger = jax.device_get(_designed(self.sweep.finger, vals))
+            validate_finger(finger)
+            moved = self._topology_change(finger)
+        except FingerError as e:
+            return _one_line(e)
+        except Exception as e:  # noqa: BLE001 - a reason, whatever went wrong
+            return _one_line(f"invalid design ({type(e).__name__}: {e})")
+        if moved is not None:
+            return moved
+        return (
+            "invalid design: a value is out of range or it changes the base finger's topology "
+            "(the order of crossbeams, load points and the support's end along a beam)"
+        )
+
+    def _topology_change(self, finger: Finger) -> str | None:
+        from ._assembly import _event_s, build_topology
+
+        events = build_topology(finger, self.sweep.mode).events
+        for beam, (old, new) in enumerate(zip(self.base_events, events)):
+            old = [e for e in old if e[0] != "sub"]
+            new = [e for e in new if e[0] != "sub"]
+            for a, c in zip(old, new):
+                if a != c:
+                    where = {0: "the front beam", 1: "the back beam"}.get(beam, beam_name(beam))
+                    sa, sc = (float(np.asarray(_event_s(finger, beam, *e))) for e in (a, c))
+                    return (
+                        "changes the base finger's topology (the order of events along a "
+                        f"beam): on {where}, {_event_name(*c)} at s = {sc:.6g} now comes "
+                        f"before {_event_name(*a)} at s = {sa:.6g}"
+                    )
+        return None
+
+
+def _reasons(res, diagnose: _Diagnosis) -> list[str]:
+    out = []
+    for k in range(res.size):
+        code = int(res.result[k])
+        if code == INVALID:
+            out.append(diagnose({n: v[k] for n, v in res.inputs.items()}))
+        else:
+            out.append(_solver_reason(code))
+    return out
+
+
+def _resume(sweep: Sweep, csv_path: str, designs, diagnose: _Diagnosis) -> int:
     """Number of complete rows already in the CSV (truncating a torn last line); checks
-    that they are the first designs of this sweep."""
-    header = ",".join(sweep.columns) + "\n"
+    that they are the first designs of this sweep. A CSV written before the `reason`
+    column existed is rewritten with it (atomically), so the sweep continues."""
+    header = _line(sweep.columns)
     if not os.path.exists(csv_path):
         fio._write_atomic(csv_path, header)
         return 0
     with open(csv_path, "rb") as fh:
         data = fh.read()
-    keep = data[: data.rfind(b"\n") + 1]  # only lines that ended
-    lines = keep.decode("utf-8").splitlines(keepends=True)
-    if not lines or lines[0] != header:
+    try:
+        lines = _complete_lines(data)
+    except UnicodeDecodeError as e:
+        raise SweepError(f"{csv_path}: not UTF-8 text ({e}); use another --out") from None
+    legacy = _line(sweep.columns[:-1])  # the columns before the reason column existed
+    if not lines or lines[0] not in (header, legacy):
         raise SweepError(f"{csv_path}: its header is not this sweep's columns; use another --out")
-    n_cols = len(sweep.columns)
+    old = lines[0] == legacy
+    n_cols = len(sweep.columns) - old
     done = 0
     for line in lines[1:]:
-        fields = line.rstrip("\n").split(",")
+        try:
+            fields = _fields(line)
+        except csv.Error:
+            break
         if len(fields) != n_cols or fields[0] != str(done):
             break
         try:
@@ -288,6 +430,14 @@ def _resume(sweep: Sweep, csv_path: str, designs) -> int:
                     f"design {done} has {_fmt(designs[name][done])}; use another --out"
                 )
         done += 1
+    if old:
+        status = sweep.columns.index("status")
+        rows = []
+        for k, line in enumerate(lines[1 : done + 1]):
+            fields = _fields(line)
+            rows.append(_line([*fields, _legacy_reason(fields[status], k, designs, diagnose)]))
+        fio._write_atomic(csv_path, header + "".join(rows))
+        return done
     size = len("".join(lines[: done + 1]).encode("utf-8"))
     if size != len(data):
         with open(csv_path, "r+b") as fh:
@@ -297,7 +447,18 @@ def _resume(sweep: Sweep, csv_path: str, designs) -> int:
     return done
 
 
-def _rows(sweep: Sweep, first: int, res) -> str:
+def _legacy_reason(status: str, k: int, designs, diagnose: _Diagnosis) -> str:
+    """The reason of row k of a CSV written before the reason column."""
+    if status == "converged":
+        return ""
+    if status == "invalid":  # (the validation is cheap: done again)
+        return diagnose({n: v[k] for n, v in designs.items()})
+    if status == "beyond_limit_load":
+        return _solver_reason(int(RESULTS.beyond_limit_load._value))
+    return _UNRECORDED
+
+
+def _rows(sweep: Sweep, first: int, res, reasons) -> str:
     lines = []
     status = res.status
     for k in range(res.size):
@@ -305,7 +466,7 @@ def _rows(sweep: Sweep, first: int, res) -> str:
         cells += [_fmt(res.inputs[n][k]) for n in sweep.names]
         cells += [_fmt(res.outputs[n][k]) for n in sweep.outputs]
         cells += [status[k], str(int(res.iterations[k])), _fmt(res.max_residual[k])]
-        lines.append(",".join(cells) + "\n")
+        lines.append(_line([*cells, reasons[k]]))
     return "".join(lines)
 
 
@@ -347,6 +508,11 @@ class SweepRun:
     def finished(self) -> bool:
         return self.done == self.total
 
+    @property
+    def converged(self) -> int:
+        """Rows whose design converged."""
+        return self.counts.get("converged", 0)
+
 
 def run_sweep(
     sweep: Sweep,
@@ -373,7 +539,8 @@ def run_sweep(
     )
     csv_path = os.path.join(out_dir, RESULTS_CSV)
     designs = sweep.designs()
-    done = _resume(sweep, csv_path, designs)
+    diagnose = _Diagnosis(sweep)
+    done = _resume(sweep, csv_path, designs, diagnose)
     bar = _Progress(sweep.size, done, progress)
     if done < sweep.size:
         batches = iter_batch(
@@ -386,9 +553,9 @@ def run_sweep(
             options=sweep.settings.options,
             start=done,
         )
-        with open(csv_path, "a", encoding="utf-8") as fh:
+        with open(csv_path, "a", encoding="utf-8", newline="") as fh:
             for chunks, (first, res) in enumerate(batches, start=1):
-                fh.write(_rows(sweep, first, res))
+                fh.write(_rows(sweep, first, res, _reasons(res, diagnose)))
                 fh.flush()
                 os.fsync(fh.fileno())
                 done = first + res.size
@@ -411,14 +578,19 @@ def run_sweep(
     return SweepRun(done, sweep.size, csv_path, figure, dict(zip(names.tolist(), counts.tolist())))
 
 
+TEXT_COLUMNS = ("status", "reason")
+
+
 def read_results(csv_path) -> dict[str, np.ndarray]:
-    """The results CSV as columns: floats, and strings for `status`."""
-    with open(csv_path, encoding="utf-8") as fh:
-        head = fh.readline().rstrip("\n").split(",")
-        rows = [line.rstrip("\n").split(",") for line in fh if line.endswith("\n")]
+    """The results CSV as columns: floats, and strings for `status` and `reason` (a CSV
+    written before the reason column has none)."""
+    with open(csv_path, "rb") as fh:
+        lines = _complete_lines(fh.read())
+    rows = list(csv.reader(line.rstrip("\n") for line in lines))
+    head, rows = (rows[0], rows[1:]) if rows else ([], [])
     cols = list(zip(*rows)) if rows else [()] * len(head)
     return {
-        name: np.asarray(col, dtype=object if name == "status" else np.float64)
+        name: np.asarray(col, dtype=object if name in TEXT_COLUMNS else np.float64)
         for name, col in zip(head, cols)
     }
 

@@ -6,6 +6,7 @@ size; about 15 s to compile on one core).
 """
 
 import contextlib
+import csv
 import io
 import json
 import os
@@ -57,8 +58,9 @@ def sweep_file(tmp_path):
 
 
 def _csv(path):
-    lines = pathlib.Path(path).read_text().splitlines()
-    return lines[0].split(","), [line.split(",") for line in lines[1:]]
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    return rows[0], rows[1:]
 
 
 def run(argv):
@@ -100,6 +102,7 @@ def test_grid_sweep_writes_one_row_per_design(sweep_file, tmp_path, reference):
         "status",
         "iterations",
         "max_residual",
+        "reason",
     ]
     assert [r[0] for r in rows] == [str(i) for i in range(6)]
     # The grid, the last name varying fastest.
@@ -110,6 +113,7 @@ def test_grid_sweep_writes_one_row_per_design(sweep_file, tmp_path, reference):
     for j, name in enumerate(sw.outputs):
         np.testing.assert_array_equal([float(r[3 + j]) for r in rows], reference.outputs[name])
     assert all(r[6] == "converged" and int(r[7]) > 0 and float(r[8]) < 1e-10 for r in rows)
+    assert all(r[9] == "" for r in rows)  # no reason: converged
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["sweep_hash"] == sw.digest and manifest["finished"] is True
     assert (out / "sweep.png").stat().st_size > 0
@@ -175,6 +179,150 @@ def test_another_sweep_in_the_same_directory_is_refused(sweep_file, tmp_path):
     other.write_text(GRID.replace("points = 3", "points = 4"))
     code, _, err = run(["sweep", str(other), "--out", str(out)])
     assert code == 1 and err.startswith("finray: error: ") and "Traceback" not in err
+
+
+# --------------------------------------------------------------------------------------
+# Why a design did not converge: the reason column, and exit 3 when none did
+# --------------------------------------------------------------------------------------
+
+THICKNESS_RANGE = "range = [0.8, 1.2]"
+
+
+def test_a_sweep_in_which_no_design_converged_exits_3_and_says_why(sweep_file, tmp_path):
+    """Every design refused by validation: exit 3 (it exited 0), a line on stderr, and
+    each row's reason names the rule the design breaks."""
+    sweep_file.write_text(GRID.replace(THICKNESS_RANGE, "range = [-1.2, -0.8]"))
+    out = tmp_path / "out"
+    code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out)])
+    assert code == 3, err
+    assert "6 of 6 designs: 6 invalid" in stdout
+    assert (
+        f"finray: no design of the sweep converged (6 invalid); see the reason column of {out}"
+        in err
+    )
+    assert "most frequent (3 of 6): crossbeams[1].thickness must be positive, got -1.2" in err
+    head, rows = _csv(out / "results.csv")
+    assert head[-4:] == ["status", "iterations", "max_residual", "reason"]
+    assert [r[-4] for r in rows] == ["invalid"] * 6
+    assert [r[-1] for r in rows] == [
+        f"crossbeams[1].thickness must be positive, got {t}" for t in ("-1.2", "-0.8") * 3
+    ]
+    # Run again (finished): the same answer.
+    code, _, err = run(["sweep", str(sweep_file), "--out", str(out)])
+    assert code == 3 and "no design of the sweep converged" in err
+
+
+def test_a_sweep_with_some_converged_designs_exits_0(sweep_file, tmp_path):
+    sweep_file.write_text(GRID.replace(THICKNESS_RANGE, "range = [-1.2, 1.2]"))
+    out = tmp_path / "out"
+    code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out)])
+    assert code == 0, err
+    assert "6 of 6 designs: 3 converged, 3 invalid" in stdout
+    assert "no design" not in err
+    _, rows = _csv(out / "results.csv")
+    assert [(r[-4], r[-1]) for r in rows] == [
+        ("invalid", "crossbeams[1].thickness must be positive, got -1.2"),
+        ("converged", ""),
+    ] * 3
+
+
+def _drop_reason_column(path):
+    """What the code before the reason column wrote: the same rows without it."""
+    head, rows = _csv(path)
+    assert head[-1] == "reason"
+    text = "".join(",".join(r[:-1]) + "\n" for r in [head, *rows])
+    pathlib.Path(path).write_text(text)
+    return text
+
+
+def test_a_sweep_started_before_the_reason_column_continues(sweep_file, tmp_path):
+    """A results.csv without the reason column (an older finray_jax) is upgraded when the
+    sweep continues: its rows get a reason (re-validated for invalid rows; not recorded
+    for failed ones), and the new rows follow."""
+    sweep_file.write_text(GRID.replace(THICKNESS_RANGE, "range = [-1.2, 1.2]"))
+    out = tmp_path / "out"
+    code, _, err = run(["sweep", str(sweep_file), "--out", str(out), "--max-chunks", "1"])
+    assert code == 0, err
+    old = _drop_reason_column(out / "results.csv")
+    lines = old.splitlines(keepends=True)
+    assert lines[0].endswith(",max_residual\n") and len(lines) == 5
+    # an old failed row (its solver message was never written), and a torn last line
+    failed = lines[2].replace(",converged,", ",failed,")
+    assert failed != lines[2]
+    torn = "4,10.0,-1.2,nan"
+    (out / "results.csv").write_text("".join(lines[:2]) + failed + "".join(lines[3:]) + torn)
+    code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out)])
+    assert code == 0, err
+    assert "6 of 6 designs" in stdout
+    head, rows = _csv(out / "results.csv")
+    assert head[-1] == "reason" and [r[0] for r in rows] == [str(i) for i in range(6)]
+    assert all(len(r) == len(head) for r in rows)
+    invalid = "crossbeams[1].thickness must be positive, got -1.2"
+    assert [(r[-4], r[-1]) for r in rows] == [
+        ("invalid", invalid),
+        ("failed", fsweep._UNRECORDED),
+        ("invalid", invalid),
+        ("converged", ""),
+        ("invalid", invalid),
+        ("converged", ""),
+    ]
+    assert "older finray_jax" in fsweep._UNRECORDED
+
+
+def test_reasons_round_trip_through_the_csv(sweep_file, tmp_path):
+    """A reason with commas and quotes is quoted in the CSV, read back as written, and a
+    resume counts its row (no solve)."""
+    from finray_jax._solution import RESULTS
+    from finray_jax.batch import INVALID, BatchResult
+
+    sw = fsweep.load_sweep(sweep_file)
+    d = sw.designs()
+    codes = [
+        INVALID,
+        int(RESULTS.nonlinear_divergence._value),
+        int(RESULTS.beyond_limit_load._value),
+        int(RESULTS.successful._value),
+    ]
+    res = BatchResult(
+        inputs={k: v[:4] for k, v in d.items()},
+        outputs={k: np.arange(4.0) for k in sw.outputs},
+        result=np.asarray(codes),
+        iterations=np.asarray([0, 50, 30, 5]),
+        max_residual=np.asarray([np.nan, 1.0, 1e-12, 1e-14]),
+    )
+    reasons = ['a, "quoted", reason', *(fsweep._solver_reason(c) for c in codes[1:])]
+    assert reasons[1:] == [
+        "nonlinear_divergence: Nonlinear solve diverged.",
+        "beyond_limit_load: No equilibrium on the loading branch: the load is beyond the "
+        "finger's limit (fold) load.",
+        "",
+    ]
+    path = tmp_path / "results.csv"
+    path.write_text(",".join(sw.columns) + "\n" + fsweep._rows(sw, 0, res, reasons))
+    data = fsweep.read_results(path)
+    assert data["reason"].tolist() == reasons
+    assert data["status"].tolist() == ["invalid", "failed", "beyond_limit_load", "converged"]
+    assert fsweep._resume(sw, str(path), d, fsweep._Diagnosis(sw)) == 4
+
+
+def test_the_reason_of_an_invalid_design_names_the_rule_or_the_topology_change():
+    text = GRID.replace("adaptor.back_clamp_length", "crossbeams.front_s[3]").replace(
+        "range = [0.0, 10.0]", "range = [55.0, 65.0]"
+    )
+    sw = fsweep.loads_sweep(text, source="s.toml", base_dir=str(ROOT / "examples"))
+    why = fsweep._Diagnosis(sw)
+    # ref-A's point load acts at s = 60, where crossbeam 3 sits: moving it past the load
+    # changes the order of events along the front beam
+    assert why({"crossbeams.front_s[3]": 62.0, "crossbeams.thickness[1]": 1.0}) == (
+        "changes the base finger's topology (the order of events along a beam): on the front "
+        "beam, loads[0] at s = 60 now comes before crossbeam 3 at s = 62"
+    )
+    assert why({"crossbeams.front_s[3]": 60.0, "crossbeams.thickness[1]": 0.0}) == (
+        "crossbeams[1].thickness must be positive, got 0.0"
+    )
+    assert why({"crossbeams.front_s[3]": 500.0, "crossbeams.thickness[1]": 1.0}).startswith(
+        "crossbeams[3].front_s = 500.0 lies outside the front beam (0, 12"
+    )
 
 
 # --------------------------------------------------------------------------------------
