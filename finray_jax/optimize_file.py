@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 
 import numpy as np
 
@@ -283,6 +284,7 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
         validate_finger(x0f)
     except Exception as e:  # noqa: BLE001 - reported with the file's name
         raise r.error("design", f"the initial design is invalid: {e}") from None
+    _check_objects_ahead(problem, r, doc, obj)
     if "min_thickness" in kw["constraints"]:
         t = [float(x0f.front.thickness), float(x0f.back.thickness)]
         t += np.asarray(x0f.crossbeams.thickness).tolist()
@@ -303,3 +305,52 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
         key.pop(k)
     digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
     return dataclasses.replace(problem, digest=digest)
+
+
+def _check_objects_ahead(problem: OptimizeProblem, r, doc, obj: dict) -> None:
+    """The grasp's checks of its objects at the initial design (in reach of the finger,
+    ahead of it along the closing direction, clear of the beams), before any solve:
+    otherwise the first grasp fails on them, naming a generated objects[0]."""
+    from ._finger import FingerError
+    from ._geometry import main_beam_samples
+    from ._grasp import _check_objects, _unit
+
+    try:
+        w = _unit(problem.direction, "direction")
+    except FingerError as e:
+        raise r.error("finger", f"{problem.finger_path}: [grasp] {e}", doc["finger"]) from None
+    for i, finger in enumerate(problem.object_fingers()):
+        try:
+            _check_objects(finger, w)
+        except FingerError as e:
+            problem_text = str(e)
+            if problem.diameters is None:  # the finger file's own object
+                raise r.error(
+                    "finger", f"{problem.finger_path}: {problem_text}", doc["finger"]
+                ) from None
+            what = re.sub(r"^objects\[0\] \(circle\) ", "", problem_text)
+            placed = (
+                f"the cylinder of objects.diameters[{i}] = {problem.diameters[i]:g} mm "
+                f"({problem.clearance:g} mm clear of the front beam)"
+            )
+            if "lies behind" in what:  # the closing direction's fault, not the height's
+                raise r.error(
+                    "finger",
+                    f"{placed} {what} (the closing direction of the finger file's [grasp])",
+                    doc["finger"],
+                ) from None
+            if "outside the reach" in what:  # in heights too, which the user gave
+                z = np.asarray(main_beam_samples(finger, 201)[1])[..., 1]
+                rad = 0.5 * problem.diameters[i]
+                what += (
+                    f" (the cylinder spans z = {problem.object_height - rad:g} to "
+                    f"{problem.object_height + rad:g} mm, the beams z = {z.min():.4g} to "
+                    f"{z.max():.4g} mm)"
+                )
+            given = "height" in obj
+            raise r.error(
+                "objects.height",
+                f"{placed}, placed at this height, {what}"
+                + ("" if given else "; this is the default height: set objects.height"),
+                obj["height"] if given else problem.object_height,
+            ) from None

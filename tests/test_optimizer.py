@@ -127,6 +127,65 @@ def test_bad_file_through_the_cli_exits_1_without_traceback(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+DIAMETERS = "[objects]\ndiameters = [18.0, 35.0]\n"
+
+
+@pytest.mark.parametrize(
+    "height, spans",
+    [("500.0", "z = 491 to 509 mm"), ("-30.0", "z = -39 to -21 mm")],
+)
+def test_object_height_out_of_reach_is_refused_when_the_file_is_read(tmp_path, height, spans):
+    """objects.height that puts the cylinders out of the finger's reach: refused at parse
+    time naming the key (it failed at the first grasp, naming a generated objects[0])."""
+    text = _clamp_text() + DIAMETERS + f"height = {height}\n"
+    with pytest.raises(O.OptimizeError) as e:
+        _load(text, tmp_path)
+    msg = str(e.value)
+    assert msg.startswith(
+        f"{tmp_path / 'opt.toml'}: objects.height = {height}: the cylinder of "
+        "objects.diameters[0] = 18 mm (0.5 mm clear of the front beam), placed at this "
+        "height, is outside the reach of the finger: "
+    )
+    assert f"(the cylinder spans {spans}, the beams z = 0 to 120 mm)" in msg
+    # in reach: accepted (an edge of the finger's span)
+    _load(text.replace(f"height = {height}", "height = 125.0"), tmp_path)
+
+
+def test_object_height_error_through_the_cli_before_any_solve(tmp_path, capsys):
+    path = tmp_path / "opt.toml"
+    path.write_text(_clamp_text() + DIAMETERS + "height = 500.0\n")
+    out = tmp_path / "out"
+    code = main(["optimize", str(path), "--out", str(out)])
+    captured = capsys.readouterr()
+    err = captured.err
+    assert code == 1 and captured.out == "" and "Traceback" not in err
+    assert err.startswith(f"finray: error: {path}: objects.height = 500.0: the cylinder")
+    assert not out.exists()
+
+
+def test_objects_behind_the_finger_are_refused_when_the_file_is_read(tmp_path):
+    """A closing direction that moves the finger away from its object: refused at parse
+    time, naming the optimisation file's finger key and the finger file."""
+    text = open(FINGER).read()
+    assert "direction = [-1.0, 0.0]" in text
+    backward = tmp_path / "backward.toml"
+    backward.write_text(text.replace("direction = [-1.0, 0.0]", "direction = [1.0, 0.0]"))
+    opt = _clamp_text().replace(FINGER, str(backward))
+    with pytest.raises(O.OptimizeError) as e:
+        _load(opt, tmp_path)
+    assert str(e.value) == (
+        f'{tmp_path / "opt.toml"}: finger = "{backward}": {backward}: objects[0] (circle) lies '
+        "behind the finger: closing along [1.0, 0.0] moves the finger away from it"
+    )
+    with pytest.raises(O.OptimizeError) as e:
+        _load(opt + DIAMETERS, tmp_path)
+    assert str(e.value) == (
+        f'{tmp_path / "opt.toml"}: finger = "{backward}": the cylinder of objects.diameters[0] = '
+        "18 mm (0.5 mm clear of the front beam) lies behind the finger: closing along [1.0, 0.0] "
+        "moves the finger away from it (the closing direction of the finger file's [grasp])"
+    )
+
+
 # ---------------------------------------------------------------------------------------
 # Bounds and constraints without a solve
 # ---------------------------------------------------------------------------------------
