@@ -8,6 +8,7 @@ import hashlib
 import json
 import re
 
+import equinox as eqx
 import numpy as np
 
 from . import io as fio
@@ -204,7 +205,9 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
     kw["temperature"] = r.number(obj.get("temperature", 0.02), "objects.temperature", positive=True)
 
     design = []
-    for i, tbl in enumerate(r.array_of_tables(doc["design"], "design")):
+    tables = r.array_of_tables(doc["design"], "design")
+    optimised = {t.get("name") for t in tables if isinstance(t.get("name"), str)}
+    for i, tbl in enumerate(tables):
         p = f"design[{i}]"
         r.table(tbl, p, ("name", "bounds", "initial"))
         fio._require(r, tbl, p, ("name", "bounds"), _HELP)
@@ -219,6 +222,7 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
         lo, hi = r.vector(tbl["bounds"], f"{p}.bounds", 2, "[lo, hi]")
         if not lo < hi:
             raise r.error(f"{p}.bounds", "needs lo < hi", tbl["bounds"])
+        _check_bounds(finger, name, lo, hi, optimised, r.error, f"{p}.bounds", tbl["bounds"])
         x0 = r.number(tbl["initial"], f"{p}.initial") if "initial" in tbl else current
         if not lo < x0 < hi:
             what = f"{p}.initial" if "initial" in tbl else f"{p}.bounds"
@@ -305,6 +309,74 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
         key.pop(k)
     digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
     return dataclasses.replace(problem, digest=digest)
+
+
+def _check_bounds(finger: Finger, name, lo, hi, optimised, error, path, value) -> None:
+    """Every value in a design value's [lo, hi] must give a valid finger (the other
+    values as in the finger file): checked at lo and at hi with the finger's validation
+    (objects aside: where they sit is the grasp's business). Every rule of the validation
+    that one value can break holds on an interval of it (a positive thickness, depth or E;
+    a clamp in [0, beam length); an attachment inside its beam; nu in (-1, 0.5); ...), so
+    the two ends decide. Crossbeams out of order are left to the `crossing` constraint
+    when the neighbour's attachment on that beam is optimised too (`optimised`: the
+    names in the file); past a neighbour that stays put, they are refused. Likewise the
+    clamp against the support's end when both are optimised."""
+    from ._finger import FingerError, validate_finger
+
+    # (the clamp against the support's end, when both move, is checked on their bounds
+    # together after every [[design]] table is read: here the other one stands aside)
+    if name == "adaptor.back_clamp_length" and "adaptor.support_length" in optimised:
+        finger = eqx.tree_at(lambda f: f.adaptor.support_length, finger, None)
+    if name == "adaptor.support_length" and "adaptor.back_clamp_length" in optimised:
+        finger = eqx.tree_at(lambda f: f.adaptor.back_clamp_length, finger, 0.0)
+    for which, x in (("lo", lo), ("hi", hi)):
+        designed = dataclasses.replace(_set_design(finger, {name: x}), objects=())
+        try:
+            validate_finger(designed)
+        except FingerError as e:
+            if _crossing_left_to_the_constraint(designed, name, optimised):
+                continue
+            raise error(
+                path,
+                f"{name} = {x!r} (the bound {which}) makes the finger invalid: "
+                f"{fio._toml_paths(str(e))}; every value in [lo, hi] must give a valid finger",
+                value,
+            ) from None
+
+
+_POSITION = re.compile(r"crossbeams\.(front_s|back_s|angle)\[(\d+)\]")
+
+
+def _crossing_left_to_the_constraint(finger: Finger, name: str, names) -> bool:
+    """True when the only fault of `finger` (made by moving crossbeam value `name`) is
+    crossbeams out of order on a beam where the other crossbeam's attachment is
+    optimised too: the `crossing` constraint keeps the two apart, the bounds need not."""
+    from ._finger import beam_lengths
+
+    m = _POSITION.fullmatch(name)
+    if m is None:
+        return False
+    c = int(m[2])
+    fs = np.asarray(finger.crossbeams.front_s, float)
+    bs = np.asarray(finger.crossbeams.back_s, float)
+    lf, lb = beam_lengths(finger)
+    if not (np.all((fs > 0) & (fs < lf)) and np.all((bs > 0) & (bs < lb))):
+        return False  # (an attachment off its beam, or not finite: a fault of its own)
+    crossed = False
+    for k in range(len(fs) - 1):
+        df, db = fs[k + 1] - fs[k], bs[k + 1] - bs[k]
+        if df > 0 and db > 0:
+            continue
+        crossed = True
+        if c not in (k, k + 1):
+            return False
+        other = k + 1 if c == k else k
+        if df <= 0 and f"crossbeams.front_s[{other}]" not in names:
+            return False
+        moved_back = {f"crossbeams.back_s[{other}]", f"crossbeams.angle[{other}]"}
+        if db <= 0 and not moved_back & set(names):
+            return False
+    return crossed
 
 
 def _check_objects_ahead(problem: OptimizeProblem, r, doc, obj: dict) -> None:

@@ -127,6 +127,107 @@ def test_bad_file_through_the_cli_exits_1_without_traceback(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+def _one_design(name, bounds, more=""):
+    return f'finger = "{FINGER}"\n[[design]]\nname = "{name}"\nbounds = {bounds}\n{more}'
+
+
+_EVERY = "; every value in [lo, hi] must give a valid finger"
+
+
+@pytest.mark.parametrize(
+    "name, bounds, message",
+    [
+        (
+            "front.thickness",
+            "[-3.0, 3.0]",
+            "front.thickness = -3.0 (the bound lo) makes the finger invalid: front.thickness "
+            "must be positive, got -3.0",
+        ),
+        (
+            "material.E",
+            "[0.0, 20.0]",
+            "material.E = 0.0 (the bound lo) makes the finger invalid: material.E must be "
+            "positive, got 0.0",
+        ),
+        (
+            "material.nu",
+            "[0.3, 0.5]",
+            "material.nu = 0.5 (the bound hi) makes the finger invalid: material.nu must lie in "
+            "(-1, 0.5), got 0.5",
+        ),
+        (
+            "crossbeams.depth[2]",
+            "[0.0, 30.0]",
+            "crossbeams.depth[2] = 0.0 (the bound lo) makes the finger invalid: "
+            "crossbeams[2].depth must be positive, got 0.0",
+        ),
+        (
+            "adaptor.back_clamp_length",
+            "[-1.0, 25.0]",
+            "adaptor.back_clamp_length = -1.0 (the bound lo) makes the finger invalid: "
+            "adaptor.back_clamp_length must lie in [0, 126.491), got -1.0",
+        ),
+        (
+            "adaptor.front_clamp_length",
+            "[0.0, 5.0]",
+            "adaptor.front_clamp_length = 5.0 (the bound hi) makes the finger invalid: "
+            "adaptor.front_clamp_length = 5.0 needs adaptor.front_base = 'clamped', got 'pinned'",
+        ),
+        (
+            "adaptor.support_length",
+            "[50.0, 200.0]",
+            "adaptor.support_length = 200.0 (the bound hi) makes the finger invalid: "
+            "adaptor.support_length = 200.0 must lie in [back_clamp_length, back beam length]",
+        ),
+        (
+            "crossbeams.front_s[6]",
+            "[100.0, 130.0]",
+            "crossbeams.front_s[6] = 130.0 (the bound hi) makes the finger invalid: "
+            "crossbeams[6].front_s = 130.0 lies outside the front beam (0, 120)",
+        ),
+        (
+            "crossbeams.front_s[4]",
+            "[70.0, 95.0]",
+            "crossbeams.front_s[4] = 95.0 (the bound hi) makes the finger invalid: crossbeams 4 "
+            "and 5 cross or touch: front_s 95.0 -> 90.0",
+        ),
+        (
+            "crossbeams.angle[4]",
+            "[-1.2, 0.2]",
+            "crossbeams.angle[4] = -1.2 (the bound lo) makes the finger invalid: "
+            "crossbeams[4].back_s = -206.1",
+        ),
+    ],
+)
+def test_bounds_that_allow_an_invalid_finger_are_refused(tmp_path, name, bounds, message):
+    """Every value between the bounds must make a valid finger: checked at both ends
+    when the file is read (a thickness in [-3, 3] was accepted)."""
+    with pytest.raises(O.OptimizeError) as e:
+        _load(_one_design(name, bounds), tmp_path)
+    msg = str(e.value)
+    assert msg.startswith(f"{tmp_path / 'opt.toml'}: design[0].bounds = {bounds}: {message}"), msg
+    assert msg.endswith(_EVERY)
+
+
+def test_bounds_that_keep_the_finger_valid_are_accepted(tmp_path):
+    _load(_one_design("crossbeams.angle[4]", "[-0.2, 0.2]"), tmp_path)
+    _load(_one_design("front.thickness", "[0.5, 6.0]"), tmp_path)
+    # neighbours that both move may overlap: the crossing constraint keeps them apart
+    both = _one_design(
+        "crossbeams.front_s[4]",
+        "[70.0, 95.0]",
+        '[[design]]\nname = "crossbeams.front_s[5]"\nbounds = [80.0, 98.0]\n',
+    )
+    assert "crossing" in _load(both, tmp_path).active_constraints()
+    # the clamp and the support's end, both moving: their bounds are compared together
+    both = _one_design(
+        "adaptor.back_clamp_length",
+        "[16.5, 61.0]",
+        '[[design]]\nname = "adaptor.support_length"\nbounds = [62.0, 70.0]\ninitial = 65.0\n',
+    )
+    _load(both, tmp_path)
+
+
 DIAMETERS = "[objects]\ndiameters = [18.0, 35.0]\n"
 
 
