@@ -319,10 +319,11 @@ def _check_bounds(finger: Finger, name, lo, hi, optimised, error, path, value) -
     a clamp in [0, beam length); an attachment inside its beam; nu in (-1, 0.5); ...), so
     the two ends decide for those. Not for every rule: the beam lengths are not monotone
     in the tip's coordinates (a tip.z range across a base), nor the beams' meeting in a
-    curvature, and such ranges can pass with an invalid value inside. Crossbeams out of order are left to the `crossing` constraint
-    when the neighbour's attachment on that beam is optimised too (`optimised`: the
-    names in the file); past a neighbour that stays put, they are refused. Likewise the
-    clamp against the support's end when both are optimised."""
+    curvature, and such ranges can pass with an invalid value inside. Crossbeams out of
+    order are left to the `crossing` constraint when the neighbour's attachment on that
+    beam is optimised too (`optimised`: the names in the file); past a neighbour that
+    stays put, they are refused. Likewise the clamp against the support's end when both
+    are optimised."""
     from ._finger import FingerError, validate_finger
 
     # (the clamp against the support's end, when both move, is checked on their bounds
