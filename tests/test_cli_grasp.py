@@ -74,3 +74,80 @@ def test_compare_and_clamp_study(tmp_path):
     assert code == 0, err
     s = json.loads((tmp_path / "clamp_study.json").read_text())
     assert len(s["best_clamp_length"]) == len(s["diameters"])
+
+
+# --------------------------------------------------------------------------------------
+# finray validate runs the grasp's object checks (no solve)
+# --------------------------------------------------------------------------------------
+
+_OBJECT = (
+    "[[objects]]               # an 18 mm cylinder 0.5 mm in front of the front beam\n"
+    'kind = "circle"\ncenter = [-11.0, 60.0]\nradius = 9.0\n'
+)
+
+
+@pytest.mark.parametrize(
+    "old, new, message",
+    [
+        (
+            "direction = [-1.0, 0.0]",
+            "direction = [0.0, 0.0]",
+            "{path}: grasp.direction must be a non-zero (x, z) direction, got [0.0, 0.0]",
+        ),
+        (
+            "direction = [-1.0, 0.0]",
+            "direction = [1.0, 0.0]",
+            "{path}: objects[0] (circle) lies behind the finger: closing along [1.0, 0.0] moves "
+            "the finger away from it",
+        ),
+        (
+            "center = [-11.0, 60.0]",
+            "center = [-11.0, 300.0]",
+            "{path}: objects[0] (circle) is outside the reach of the finger: it spans [-309, "
+            "-291] mm across the closing direction, the finger [-120, 0] mm",
+        ),
+        (
+            _OBJECT,
+            "",
+            "{path}: grasp: a [grasp] table needs at least one [[objects]] entry to close the "
+            "finger on",
+        ),
+    ],
+)
+def test_validate_runs_the_grasp_checks(tmp_path, old, new, message):
+    """A file `finray grasp` would refuse is not 'OK' for `finray validate` (it was): the
+    same checks, without solving, naming the file and the key; exit 1."""
+    text = pathlib.Path(GRASP).read_text()
+    assert old in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(old, new))
+    code, out, err = run(["validate", str(path)])
+    assert (code, out) == (1, ""), out
+    assert err == f"finray: error: {message.format(path=path)}\n"
+    # finray grasp refuses it before any solve, with the same message
+    code, out, err = run(["grasp", str(path)])
+    assert (code, out) == (1, "") and err == f"finray: error: {message.format(path=path)}\n"
+
+
+def test_validate_checks_objects_without_a_grasp_table_for_the_default_direction(tmp_path):
+    text = pathlib.Path(GRASP).read_text().split("[grasp]")[0]
+    path = tmp_path / "objects.toml"
+    path.write_text(text)
+    code, out, err = run(["validate", str(path)])
+    assert code == 0, err
+    assert out.endswith(
+        "; grasp: 1 object ahead and in reach, closing along [-1, 0] (no [grasp] table: the "
+        "default closing direction)\n"
+    )
+    path.write_text(text.replace("center = [-11.0, 60.0]", "center = [-11.0, 300.0]"))
+    code, out, err = run(["validate", str(path)])
+    assert code == 1 and out == ""
+    assert err.startswith(f"finray: error: {path}: objects[0] (circle) is outside the reach")
+    assert err.endswith("(no [grasp] table: the default closing direction)\n")
+
+
+def test_validate_grasp_examples():
+    for name in ("grasp_finger1.toml", "grasp_finger1_modified.toml"):
+        code, out, err = run(["validate", str(ROOT / "examples" / name)])
+        assert code == 0 and err == "", err
+        assert out.endswith("; grasp: 1 object ahead and in reach, closing along [-1, 0]\n")
