@@ -16,6 +16,7 @@ from ._finger import Crossbeams as Crossbeams
 from ._finger import DistributedLoad as DistributedLoad
 from ._finger import Finger as Finger
 from ._finger import FingerError as FingerError
+from ._finger import FingerWarning as FingerWarning
 from ._finger import Material as Material
 from ._finger import PointLoad as PointLoad
 from ._finger import Section as Section

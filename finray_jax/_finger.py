@@ -4,6 +4,11 @@ Design values are float64 arrays (changing them never recompiles). What fixes sh
 code paths (counts, boundary-condition kinds, the beam a load acts on) is static.
 """
 
+import dataclasses
+import os
+import sys
+import warnings
+
 import equinox as eqx
 import jax
 import numpy as np
@@ -175,6 +180,22 @@ class FingerError(ValueError):
     """An invalid finger description."""
 
 
+class FingerWarning(UserWarning):
+    """A valid finger with a likely mistake (a load the adaptor carries, for example)."""
+
+
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def _warn(message: str) -> None:
+    """warnings.warn(message, FingerWarning) attributed to the first caller outside
+    finray_jax (the user's line that solved, validated or read the finger)."""
+    level, frame = 1, sys._getframe(0)
+    while frame.f_back is not None and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, FingerWarning, stacklevel=level)
+
+
 def _num(x):
     return np.asarray(x, dtype=np.float64)
 
@@ -231,7 +252,8 @@ def validate_finger(finger: Finger) -> None:
     shapes = {k: np.shape(getattr(cb, k)) for k in ("front_s", "back_s", "thickness", "depth")}
     if len(set(shapes.values())) != 1 or len(shapes["front_s"]) != 1:
         raise FingerError(f"crossbeam arrays must be 1-D of equal length, got shapes {shapes}")
-    lengths = jax.device_get(_geometry(finger).length).tolist()  # front, back, crossbeams
+    geo = jax.device_get(_geometry(finger))
+    lengths = geo.length.tolist()  # front, back, crossbeams
     finger = jax.device_get(finger)  # the checks below run on numpy values
     m = finger.material
     _positive("material.E", m.E)
@@ -270,6 +292,8 @@ def validate_finger(finger: Finger) -> None:
         raise FingerError("front_base and back_base coincide")
     if finger.torsion not in TORSION_KINDS:
         raise FingerError(f"torsion must be one of {TORSION_KINDS}, got {finger.torsion!r}")
+    front_line, back_line = _centrelines(finger, geo)
+    _check_main_beams_apart(finger, front_line, back_line)
 
     cb = finger.crossbeams
     fs = _num(cb.front_s)
@@ -307,8 +331,17 @@ def validate_finger(finger: Finger) -> None:
                 f"crossbeams must be listed base to tip: crossbeams[{i + 1}].front_s = "
                 f"{fs[i + 1]} < crossbeams[{i}].front_s = {fs[i]}"
             )
-    if len(fs) and min(lengths[2:]) <= 1e-9:
-        raise FingerError("a crossbeam has zero length (its two ends coincide)")
+    if len(fs):
+        # half the sum of the main beams' half thicknesses at the two ends
+        least = 0.5 * (front_line.half(fs) + back_line.half(bs))
+        for i, length in enumerate(lengths[2:]):
+            if length < least[i]:
+                raise FingerError(
+                    f"crossbeams[{i}] is {length:.4g} mm long (from front_s = {fs[i]} to "
+                    f"back_s = {bs[i]}): a crossbeam must be at least {least[i]:.4g} mm long "
+                    "(half the sum of the main beams' half thicknesses at its ends); "
+                    "a shorter one joins nearly coincident points"
+                )
 
     ad = finger.adaptor
     for name, kind in (("adaptor.front_base", ad.front_base), ("adaptor.back_base", ad.back_base)):
@@ -366,6 +399,7 @@ def validate_finger(finger: Finger) -> None:
                 raise FingerError(
                     f"{where}.s = {s} lies outside the {beam_name(load.beam)} beam (0, {total:.6g}]"
                 )
+            _warn_if_clamped(finger, j, load.beam, f"s = {s}", s, s)
         elif isinstance(load, DistributedLoad):
             s0, s1 = _finite(f"{where}.s_range", _shaped(f"{where}.s_range", load.s_range, (2,)))
             _finite(f"{where}.total_force", _shaped(f"{where}.total_force", load.total_force, (3,)))
@@ -374,8 +408,186 @@ def validate_finger(finger: Finger) -> None:
                     f"{where}.s_range = [{s0}, {s1}] must satisfy 0 <= s0 < s1 <= {total:.6g} "
                     f"on the {beam_name(load.beam)} beam"
                 )
+            s0, s1 = float(s0), float(s1)
+            _warn_if_clamped(finger, j, load.beam, f"s_range = [{s0}, {s1}]", s0, s1)
         else:
             raise FingerError(f"{where} is not a PointLoad or DistributedLoad: {load!r}")
+
+
+def _warn_if_clamped(finger: Finger, j: int, beam: int, where: str, s0: float, s1: float):
+    """Warn when load j, on [s0, s1] of a main beam (s0 = s1 for a point load), lies in
+    that beam's clamped length [0, l_c]: the rigid adaptor carries it."""
+    if beam not in (FRONT, BACK):
+        return
+    name = beam_name(beam)
+    lc = float(_num(getattr(finger.adaptor, f"{name}_clamp_length")))
+    if lc <= 0.0 or s0 > lc or (s0 == lc and s1 > s0):
+        return  # outside, or a distributed load that only starts at the clamp's end
+    what = f"loads[{j}] (beam {name}, {where})"
+    field = f"adaptor.{name}_clamp_length"
+    if s1 <= lc:
+        _warn(
+            f"{what} lies inside the {name} beam's clamped length {lc} mm ({field}): "
+            "the adaptor carries it, so it does not deform the finger"
+        )
+    else:
+        _warn(
+            f"{what} lies partly inside the {name} beam's clamped length {lc} mm ({field}): "
+            f"the adaptor carries its part on [{s0}, {lc}]"
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Centreline:
+    """A main beam's undeformed centreline for the eager geometry checks (numpy): points
+    along it, and the polyline other points are measured against (its two ends when the
+    beam is straight, the points themselves when it is an arc)."""
+
+    s: np.ndarray  # (n,) arc lengths, 0 to the beam's length
+    p: np.ndarray  # (n, 2) points (x, z)
+    path_s: np.ndarray  # (m,) the polyline's arc lengths
+    path_p: np.ndarray  # (m, 2) its points
+    t0: float  # thickness at the base
+    t1: float  # thickness at the tip
+    length: float
+    tangent_at_tip: np.ndarray  # (2,) unit tangent (x, z), base to tip
+
+    def half(self, s):
+        """Half thickness at arc lengths s."""
+        return 0.5 * (self.t0 + (self.t1 - self.t0) * np.asarray(s) / self.length)
+
+
+def _centrelines(finger: Finger, geo, n: int = 101) -> tuple[_Centreline, _Centreline]:
+    """The front and back beams' undeformed centrelines at n points each, computed as in
+    `_geometry.arc_point` (a circular arc of constant precurvature, or a straight line)."""
+    out = []
+    for b, sec in ((FRONT, finger.front), (BACK, finger.back)):
+        base = np.asarray(geo.base[b], dtype=np.float64)[[0, 2]]
+        theta, kappa = float(geo.theta[b]), float(geo.curvature[b])
+        length = float(geo.length[b])
+        s = np.linspace(0.0, length, n)
+        half = theta + 0.5 * kappa * s
+        r = s * np.sinc(0.5 * kappa * s / np.pi)  # np.sinc(x) = sin(pi x) / (pi x)
+        p = base + r[:, None] * np.stack([np.sin(half), np.cos(half)], axis=-1)
+        p[-1] = _num(finger.tip)  # the shared tip exactly
+        ends = [0, n - 1] if kappa == 0.0 else slice(None)
+        t0 = float(_num(sec.thickness))
+        t1 = t0 if sec.tip_thickness is None else float(_num(sec.tip_thickness))
+        end = theta + kappa * length
+        tangent = np.array([np.sin(end), np.cos(end)])
+        out.append(_Centreline(s, p, s[ends], p[ends], t0, t1, length, tangent))
+    return out[0], out[1]
+
+
+def _nearest(line: _Centreline, points):
+    """Distance from each point (k, 2) to a centreline's polyline, and the arc length of
+    the nearest point on it."""
+    ax, az = line.path_p[:-1, 0], line.path_p[:-1, 1]
+    ex, ez = np.diff(line.path_p[:, 0]), np.diff(line.path_p[:, 1])
+    rx, rz = points[:, :1] - ax, points[:, 1:] - az  # (k, m - 1)
+    t = np.clip((rx * ex + rz * ez) / (ex * ex + ez * ez), 0.0, 1.0)
+    dist = np.hypot(rx - t * ex, rz - t * ez)
+    j = np.argmin(dist, axis=1)
+    k = np.arange(len(points))
+    return dist[k, j], line.path_s[j] + t[k, j] * np.diff(line.path_s)[j]
+
+
+def _crossing(front: _Centreline, back: _Centreline):
+    """(back s, front s, point) of the first crossing of the two centrelines' polylines
+    before the tip they share, or None."""
+    P, Q = back.path_p, front.path_p
+    ax, az = P[:-1, 0, None], P[:-1, 1, None]  # back segments (i), down
+    bx, bz = np.diff(P[:, 0])[:, None], np.diff(P[:, 1])[:, None]
+    cx, cz = Q[None, :-1, 0], Q[None, :-1, 1]  # front segments (j), across
+    dx, dz = np.diff(Q[:, 0])[None], np.diff(Q[:, 1])[None]
+    d1 = bx * (cz - az) - bz * (cx - ax)  # sides of the front segment's ends
+    d2 = bx * (cz + dz - az) - bz * (cx + dx - ax)
+    d3 = dx * (az - cz) - dz * (ax - cx)  # sides of the back segment's ends
+    d4 = dx * (az + bz - cz) - dz * (ax + bx - cx)
+    hit = (d1 * d2 < 0) & (d3 * d4 < 0)
+    hit[-1, -1] = False  # the last segments meet at the tip
+    if not np.any(hit):
+        return None
+    i, j = np.argwhere(hit)[0]
+    ta = d3[i, j] / (d3[i, j] - d4[i, j])
+    tc = d1[i, j] / (d1[i, j] - d2[i, j])
+    sb = back.path_s[i] + ta * (back.path_s[i + 1] - back.path_s[i])
+    sf = front.path_s[j] + tc * (front.path_s[j + 1] - front.path_s[j])
+    return float(sb), float(sf), P[i] + ta * (P[i + 1] - P[i])
+
+
+def _fmt(p) -> str:
+    """A point (x, z) to 4 digits (round-off below 1e-9 mm shown as 0)."""
+    return "(" + ", ".join(f"{round(float(x), 9) + 0.0:.4g}" for x in p) + ")"
+
+
+def _check_main_beams_apart(finger: Finger, front: _Centreline, back: _Centreline) -> None:
+    """The front and back beams' undeformed centrelines stay apart by at least the sum of
+    their half thicknesses, except near the tip they share; they never cross."""
+    fields = (
+        f"front_base = {_num(finger.front_base).tolist()}, back_base = "
+        f"{_num(finger.back_base).tolist()}, tip = {_num(finger.tip).tolist()}"
+    )
+    for name in ("front_curvature", "back_curvature"):
+        kappa = float(_num(getattr(finger, name)))
+        if kappa != 0.0:
+            fields += f", {name} = {kappa}"
+    tol = 1e-9 * max(front.length, back.length)
+    # Each base against the other beam (the rule for the back base is the one that matters
+    # in practice; the front base's is its mirror image).
+    for base_name, own, other in (("back_base", back, front), ("front_base", front, back)):
+        d, s = _nearest(other, own.p[:1])
+        least = own.half(0.0) + float(other.half(s[0]))
+        if d[0] < least:
+            where = "on" if d[0] <= tol else f"{d[0]:.4g} mm from"
+            other_name = "front" if other is front else "back"
+            raise FingerError(
+                f"{base_name} = {own.p[0].tolist()} lies {where} the {other_name} beam's "
+                f"centreline (nearest at {other_name} s = {s[0]:.4g}): it must lie at least "
+                f"{least:.4g} mm from it (half the front plus half the back thickness), or "
+                "the two beams overlap; they may meet only at the tip"
+            )
+    hit = _crossing(front, back)
+    if hit is not None:
+        sb, sf, p = hit
+        raise FingerError(
+            f"the back beam crosses the front beam at (x, z) = {_fmt(p)} (back s = {sb:.4g}, "
+            f"front s = {sf:.4g}): the two beams may meet only at the tip ({fields})"
+        )
+    # Near the tip the beams necessarily come together: within r of it, the centrelines of
+    # two beams meeting at an angle alpha lie about r sin(alpha) apart. Exempt twice the
+    # distance over which that is less than the two half thicknesses at the tip (alpha
+    # capped at 90 degrees), but never more than a quarter of the shorter beam's length.
+    cos_alpha = float(np.clip(front.tangent_at_tip @ back.tangent_at_tip, -1.0, 1.0))
+    sin_alpha = 1.0 if cos_alpha <= 0.0 else float(np.sqrt(1.0 - cos_alpha**2))
+    at_tip = float(front.half(front.length) + back.half(back.length))
+    zone = 0.25 * min(front.length, back.length)
+    if 2.0 * at_tip < zone * sin_alpha:
+        zone = 2.0 * at_tip / sin_alpha
+    tip = _num(finger.tip)
+    worst = None  # (shortfall ratio, distance, least, front s, back s, point)
+    for own, other in ((back, front), (front, back)):
+        keep = np.linalg.norm(own.p - tip, axis=-1) >= zone
+        if not np.any(keep):
+            continue
+        d, s_other = _nearest(other, own.p[keep])
+        least = own.half(own.s[keep]) + other.half(s_other)
+        ratio = d / least
+        k = int(np.argmin(ratio))
+        if ratio[k] < 1.0 and (worst is None or ratio[k] < worst[0]):
+            s_own = float(own.s[keep][k])
+            sf, sb = (s_own, float(s_other[k])) if own is front else (float(s_other[k]), s_own)
+            worst = (ratio[k], float(d[k]), float(least[k]), sf, sb, own.p[keep][k])
+    if worst is not None:
+        _, d, least, sf, sb, p = worst
+        raise FingerError(
+            f"the front and back beams' centrelines come within {d:.4g} mm of each other "
+            f"at front s = {sf:.4g}, back s = {sb:.4g} (near (x, z) = {_fmt(p)}, "
+            f"{float(np.linalg.norm(p - tip)):.4g} mm from the tip): apart from the last "
+            f"{zone:.4g} mm before the tip they must stay at least {least:.4g} mm apart "
+            f"(half the front plus half the back thickness there), or the beams overlap "
+            f"({fields})"
+        )
 
 
 def out_of_plane_load(finger: Finger) -> str | None:

@@ -703,6 +703,8 @@ def _toml_paths(msg: str) -> str:
     msg = re.sub(r"(?<![\w.])front_base\b", "front.base", msg)
     msg = re.sub(r"(?<![\w.])back_base\b", "back.base", msg)
     msg = re.sub(r"^tip\b", "front.tip", msg)
+    msg = re.sub(r"(?<![\w.])tip = ", "front.tip = ", msg)
+    msg = re.sub(r"(?<![\w.])(front|back)_curvature\b", r"\1.curvature", msg)
     msg = msg.replace("equals tip", "equals front.tip")
     return msg
 

@@ -2,13 +2,17 @@
 ValueError that names the field and the offending value, before anything is compiled."""
 
 import dataclasses
+import pathlib
 import re
+import warnings
 
 import equinox as eqx
 import numpy as np
 import pytest
 
 import finray_jax as fr
+
+EXAMPLES = pathlib.Path(__file__).resolve().parent.parent / "examples"
 
 
 @pytest.fixture(scope="module")
@@ -214,19 +218,89 @@ def test_crossbeams_listed_tip_to_base(finger):
     _raises(_crossbeams(finger, **rev), "base to tip", "crossbeams[1].front_s")
 
 
-def test_zero_length_crossbeam():
-    # Collinear main beams: the back beam runs through the front beam, so a crossbeam can
-    # join two coincident points.
-    f = fr.Finger(
-        material=fr.Material(12.0, 0.45),
-        front_base=(0.0, 0.0),
-        back_base=(0.0, -10.0),
-        tip=(0.0, 120.0),
-        front=fr.Section(1.5, 20.0),
-        back=fr.Section(1.5, 20.0),
-        crossbeams=fr.Crossbeams([10.0], [20.0], [1.0], [20.0]),
+NO_CROSSBEAMS = fr.Crossbeams(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+def _main_beams(finger, crossbeams=NO_CROSSBEAMS, **kw):
+    """ref-A with other main-beam fields (and, by default, no crossbeams)."""
+    return dataclasses.replace(finger, crossbeams=crossbeams, **kw)
+
+
+@pytest.mark.parametrize("back_base", [(0.0, 10.0), (0.0, 60.0), (1.0, 0.0), (-0.5, 30.0)])
+def test_back_base_on_or_near_the_front_beam(finger, back_base):
+    # (0, 10): the back beam runs along the front beam from z = 10 to the tip; the solve
+    # "converged" to dx = 49.6 mm before this rule. Within (1.5 + 1.5) / 2 = 1.5 mm of the
+    # front beam's centreline is refused as well. The crossbeams are kept: the beams
+    # are refused before them.
+    bad = _main_beams(finger, finger.crossbeams, back_base=np.array(back_base))
+    where = "lies on" if back_base[0] == 0.0 else f"lies {abs(back_base[0]):.4g} mm from"
+    _raises(bad, f"back_base = {list(back_base)}", where, "front beam's centreline", "1.5 mm")
+
+
+def test_front_base_on_the_back_beam(finger):
+    # Collinear beams, the back base below the front base: the back beam runs through
+    # the front beam's base and along it (a crossbeam could then join coincident points).
+    bad = _main_beams(finger, back_base=np.array([0.0, -10.0]))
+    _raises(bad, "front_base = [0.0, 0.0]", "lies on the back beam's centreline", "at back s = 10")
+
+
+@pytest.mark.parametrize("kappa", [0.01, 0.015])
+def test_back_beam_crossing_the_front_beam(finger, kappa):
+    # Precurved toward the front beam, the back beam's arc crosses it (at z = 49 and 13.3)
+    # and comes back to the tip.
+    bad = _main_beams(finger, finger.crossbeams, back_curvature=kappa)
+    _raises(bad, "back beam crosses the front beam", f"back_curvature = {kappa}", "only at the tip")
+
+
+@pytest.mark.parametrize("back_base", [(2.0, 0.0), (5.0, 0.0)])
+def test_main_beams_too_close_away_from_the_tip(finger, back_base):
+    # A 2 or 5 mm wide base: the 1.5 mm beams overlap over more than the last quarter of
+    # the front beam (30 mm).
+    bad = _main_beams(finger, back_base=np.array(back_base))
+    _raises(bad, "centrelines come within", "of each other", "last 30 mm", "at least 1.5 mm")
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(back_base=np.array([-40.0, 0.0])),  # mirrored
+        dict(back_base=np.array([40.0, -20.0])),
+        dict(back_base=np.array([6.5, 0.0])),  # narrow, overlapping only near the tip
+        dict(front_curvature=0.004, back_curvature=-0.003),
+        dict(back_curvature=0.005),  # nearly tangent at the tip, not crossing
+        dict(front=fr.Section(1.5, 20.0, tip_thickness=3.0)),
+    ],
+)
+def test_main_beams_meeting_only_at_the_tip_are_accepted(finger, kw):
+    fr.validate_finger(_main_beams(finger, **kw))
+
+
+def test_round_trip_finger_of_test_toml_is_accepted():
+    fr.validate_finger(
+        fr.Finger(
+            material=fr.Material(20.0, 0.3, shear_coefficient=1.0),
+            front_base=(1.0, -2.0),
+            back_base=(35.5, 0.25),
+            tip=(3.0, 90.0),
+            front=fr.Section(2.0, 15.0, tip_thickness=1.25),
+            back=fr.Section(1.75, 15.0),
+            crossbeams=fr.Crossbeams(
+                [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
+            ),
+            back_curvature=-0.002,
+        )
     )
-    _raises(f, "crossbeam", "zero length")
+
+
+def test_short_crossbeam(finger):
+    # Near the tip the main beams may come close; a crossbeam there still needs a length
+    # of at least half the sum of the main beams' half thicknesses, (0.75 + 0.75) / 2.
+    lb = float(np.hypot(40.0, 120.0))
+    cb = fr.Crossbeams(
+        [117.0, 119.5], [lb * 117.0 / 120.0, lb * 119.5 / 120.0], [1.0] * 2, [20.0] * 2
+    )
+    _raises(_crossbeams(finger, **vars(cb)), "crossbeams[1]", "0.1667 mm long", "0.75 mm")
+    fr.validate_finger(_crossbeams(finger, **{k: v[:1] for k, v in vars(cb).items()}))  # 1 mm
 
 
 @pytest.mark.parametrize(
@@ -284,6 +358,70 @@ def test_point_load_outside_its_beam(finger, beam, s):
     # crossbeam 0 (beam 2) is 40 (1 - 15/120) = 35 mm long.
     bad = finger.with_loads(finger.loads[0], fr.PointLoad(beam, s, (0.05, 0.0, 0.0)))
     _raises(bad, "loads[1].s", repr(s))
+
+
+# A load inside a clamped length (the adaptor carries it) is valid, with a warning.
+
+
+def _clamp_warning(finger, *fragments):
+    """validate_finger(finger) warns once with a FingerWarning holding every fragment,
+    attributed to the caller's line (here, this file)."""
+    with pytest.warns(fr.FingerWarning) as record:
+        fr.validate_finger(finger)
+    assert len(record) == 1, [str(w.message) for w in record]
+    msg = str(record[0].message)
+    for frag in fragments:
+        assert frag in msg, f"{frag!r} not in {msg!r}"
+    assert record[0].filename == __file__
+    return msg
+
+
+@pytest.mark.parametrize("s", [5.0, 10.0])
+def test_point_load_inside_the_back_clamp_warns(finger, s):
+    f = _adaptor(finger, back_clamp_length=10.0).with_loads(
+        finger.loads[0], fr.PointLoad(1, s, (0.05, 0.0, 0.0))
+    )
+    msg = _clamp_warning(f, f"loads[1] (beam back, s = {s})", "back beam's clamped length 10.0")
+    assert "adaptor.back_clamp_length" in msg and "the adaptor carries it" in msg
+
+
+def test_point_load_inside_the_front_clamp_warns(finger):
+    f = _adaptor(finger, front_clamp_length=20.0).with_loads(
+        fr.PointLoad(0, 12.5, (0.05, 0.0, 0.0))
+    )
+    _clamp_warning(f, "loads[0] (beam front, s = 12.5)", "front beam's clamped length 20.0")
+
+
+def test_distributed_load_inside_a_clamp_warns(finger):
+    clamped = _adaptor(finger, back_clamp_length=10.0)
+    inside = clamped.with_loads(fr.DistributedLoad(1, (2.0, 8.0), (0.05, 0.0, 0.0)))
+    _clamp_warning(inside, "loads[0] (beam back, s_range = [2.0, 8.0]) lies inside", "10.0")
+    partly = clamped.with_loads(fr.DistributedLoad(1, (5.0, 30.0), (0.05, 0.0, 0.0)))
+    _clamp_warning(partly, "s_range = [5.0, 30.0]) lies partly inside", "part on [5.0, 10.0]")
+
+
+def test_loads_outside_the_clamps_do_not_warn(finger):
+    f = _adaptor(finger, front_clamp_length=5.0, back_clamp_length=10.0).with_loads(
+        fr.PointLoad(1, 10.5, (0.05, 0.0, 0.0)),
+        fr.DistributedLoad(1, (10.0, 30.0), (0.05, 0.0, 0.0)),  # starts at the clamp's end
+        fr.PointLoad(2, 1.0, (0.05, 0.0, 0.0)),  # a crossbeam is never clamped
+        fr.PointLoad(0, 60.0, (0.05, 0.0, 0.0)),
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fr.FingerWarning)
+        fr.validate_finger(f)
+        fr.validate_finger(finger.with_loads(fr.PointLoad(1, 5.0, (0.05, 0.0, 0.0))))  # no clamp
+    assert issubclass(fr.FingerWarning, UserWarning)
+
+
+def test_finger_file_with_a_load_in_the_clamp_warns():
+    from finray_jax import io as fio
+
+    text = (EXAMPLES / "ref_a.toml").read_text()
+    text = text.replace("[adaptor]", "[adaptor]\nback_clamp_length = 10.0", 1)
+    text += '\n[[loads]]\nkind = "point"\nbeam = "back"\ns = 5.0\nforce = [0.05, 0.0, 0.0]\n'
+    with pytest.warns(fr.FingerWarning, match=re.escape("loads[1] (beam back, s = 5.0)")):
+        fio.loads_finger(text)
 
 
 def test_point_load_at_the_tip_is_accepted(finger):
