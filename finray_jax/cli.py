@@ -532,37 +532,30 @@ def _cmd_limit(args) -> int:
     return EXIT_OK if found else EXIT_FAILED
 
 
-DEFAULT_DIRECTION = (-1.0, 0.0)  # fr.grasp's closing direction when a file gives none
-
-
 def _check_grasp_objects(path, finger, settings) -> str | None:
     """The checks `fr.grasp` makes of a finger file's objects before it solves (a
     non-zero closing direction; objects within the finger's reach and ahead of it), run
-    without solving when the file has a [grasp] table or [[objects]] (without [grasp]:
-    for the default closing direction). Errors name the file and the key. Returns what
-    was checked, for a summary line (None: nothing to check)."""
+    without solving when the file has a [grasp] table. Errors name the file and the key.
+    Returns what was checked, for a summary line (None: no [grasp], nothing to check:
+    objects in a file without one are obstacles of a loaded solve, where any side of the
+    finger is fine)."""
     from ._grasp import _check_objects, _unit
 
     gs = settings.grasp
-    if gs is None and not finger.objects:
+    if gs is None:
         return None
     if not finger.objects:
         raise UserError(
             f"{path}: grasp: a [grasp] table needs at least one [[objects]] entry to close the "
             "finger on"
         )
-    direction = DEFAULT_DIRECTION if gs is None else gs.direction
     try:
-        w = _unit(direction, "grasp.direction")
-    except fr.FingerError as e:
-        raise UserError(f"{path}: {e}") from None
-    default = "" if gs is not None else " (no [grasp] table: the default closing direction)"
-    try:
+        w = _unit(gs.direction, "grasp.direction")
         _check_objects(finger, w)
     except fr.FingerError as e:
-        raise UserError(f"{path}: {e}{default}") from None
+        raise UserError(f"{path}: {e}") from None
     n = len(finger.objects)
-    along = f"closing along [{w[0]:g}, {w[1]:g}]{default}"
+    along = f"closing along [{w[0]:g}, {w[1]:g}]"
     return f"{n} object{'s' if n > 1 else ''} ahead and in reach, {along}"
 
 
