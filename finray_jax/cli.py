@@ -13,6 +13,7 @@ import math
 import os
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -933,8 +934,26 @@ COMMANDS = {
 }
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """A FingerWarning as one line, `finray: warning: ...` (Python's default names the
+    console script's line and echoes it); other warnings as Python shows them."""
+    if issubclass(category, fr.FingerWarning):
+        print(f"finray: warning: {message}", file=sys.stderr if file is None else file)
+    else:
+        _python_show_warning(message, category, filename, lineno, file, line)
+
+
+_python_show_warning = warnings.showwarning
+
+
 def main(argv=None) -> int:
     """Entry point of the `finray` console script. Returns the exit code."""
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        return _main(argv)
+
+
+def _main(argv) -> int:
     parser = _parser()
     try:
         try:

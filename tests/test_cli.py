@@ -158,6 +158,20 @@ def test_validate_examples(name):
     assert "OK" in out and err == ""
 
 
+def test_validate_warns_of_a_load_in_the_clamp_in_one_line(tmp_path):
+    text = (ROOT / "examples" / "ref_a.toml").read_text()
+    text = text.replace(
+        'back_base = "clamped"\n', 'back_base = "clamped"\nback_clamp_length = 10.0\n'
+    )
+    text += '\n[[loads]]\nkind = "point"\nbeam = "back"\ns = 5.0\nforce = [0.01, 0.0, 0.0]\n'
+    path = tmp_path / "clamped_load.toml"
+    path.write_text(text)
+    code, out, err = run(["validate", str(path)])
+    assert code == 0 and "OK" in out
+    assert err.startswith("finray: warning: loads[1] (beam back, s = 5.0) lies inside the back ")
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+
+
 def _bad_file(tmp_path):
     text = (ROOT / "examples" / "ref_a.toml").read_text()
     text = text.replace(
