@@ -105,6 +105,21 @@ def test_invalid_members_are_flagged_and_leave_the_others_alone(clean):
         np.testing.assert_allclose(res.outputs[k][[0, 2, 3]], ref.outputs[k][[0, 2, 3]], rtol=1e-12)
 
 
+@pytest.mark.slow
+def test_crossing_members_are_invalid():
+    """Members whose back beam, precurved, crosses the front beam (validate_finger's
+    geometry rules) are flagged invalid, not solved; the others converge (compiles a
+    batch of its own: ~20 s)."""
+    kappa = np.array([0.0, 0.01, 0.004, 0.015])
+    res = batch.solve_batch(BASE, {"back.curvature": kappa}, ["tip.dx"], chunk_size=CHUNK)
+    assert res.status.tolist() == ["converged", "invalid", "converged", "invalid"]
+    for k in kappa[[1, 3]]:
+        with pytest.raises(fr.FingerError, match="the back beam crosses the front beam"):
+            fr.validate_finger(design.set_design(BASE, {"back.curvature": k}))
+    assert np.all(np.isnan(res.outputs["tip.dx"][[1, 3]]))
+    assert np.all(np.isfinite(res.outputs["tip.dx"][[0, 2]]))
+
+
 @pytest.mark.parametrize("vectorize", [True, None])
 def test_new_values_never_recompile(clean, clean_vmapped, vectorize):
     values, _ = clean

@@ -5,6 +5,10 @@ The gradient tests compile the fully traced solve under `jax.jacfwd` and `jax.gr
 module fixture: 1.5-3 minutes on the 2-core test machine, depending on its load.
 """
 
+import dataclasses
+import pathlib
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,6 +16,9 @@ import pytest
 
 import finray_jax as fr
 from finray_jax import design
+from finray_jax import io as fio
+
+EXAMPLES = pathlib.Path(__file__).resolve().parent.parent / "examples"
 
 # ref-A under L1 with both bases clamped over 8 mm (short of the first crossbeam at 15 mm),
 # so that the clamp lengths are interior values and their derivatives are two-sided.
@@ -145,6 +152,223 @@ def test_design_valid():
     assert not ok({"crossbeams.back_s[6]": 130.0})  # beyond the back beam
     assert not ok({"adaptor.front_clamp_length": -1.0})
     assert not ok({"material.nu": 0.5})
+
+
+# --------------------------------------------------------------------------------------
+# design_valid holds validate_finger's geometry rules: main beams apart except at the tip,
+# never crossing; crossbeams long enough (docs/finger-format.md, "Geometry rules")
+# --------------------------------------------------------------------------------------
+
+REF = fr.ref_finger_a("L1")
+NO_CROSSBEAMS = fr.Crossbeams(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
+BARE = dataclasses.replace(REF, crossbeams=NO_CROSSBEAMS)  # ref-A's main beams alone
+# design_valid jitted, the topology static (one compilation per finger structure)
+VALID = jax.jit(design.design_valid, static_argnums=1)
+
+
+def _topology(finger):
+    return fr.topology_of(finger, "planar")
+
+
+def _refusal(finger) -> str | None:
+    """validate_finger's message, or None when it accepts the finger."""
+    try:
+        fr.validate_finger(finger)
+    except fr.FingerError as e:
+        return str(e)
+    return None
+
+
+def _with(finger, **kw):
+    """A copy of finger with other fields (points as (x, z) tuples)."""
+    kw = {k: np.asarray(v) if isinstance(v, tuple) else v for k, v in kw.items()}
+    return dataclasses.replace(finger, **kw)
+
+
+# (finger, the valid finger whose topology a batch of it would use, validate_finger's words)
+REFUSED = {
+    "back base on the front beam": (
+        _with(BARE, back_base=(0.0, 10.0)),
+        BARE,
+        "back_base = [0.0, 10.0] lies on the front beam's centreline",
+    ),
+    "back base 1 mm from the front beam": (
+        _with(BARE, back_base=(1.0, 0.0)),
+        BARE,
+        "lies 1 mm from the front beam's centreline",
+    ),
+    "back base 0.5 mm beside the front beam": (
+        _with(BARE, back_base=(-0.5, 30.0)),
+        BARE,
+        "lies 0.5 mm from the front beam's centreline",
+    ),
+    "front base on the back beam": (
+        _with(BARE, back_base=(0.0, -10.0)),
+        BARE,
+        "front_base = [0.0, 0.0] lies on the back beam's centreline",
+    ),
+    "back beam bowing across the front beam": (
+        _with(REF, back_curvature=0.01),
+        REF,
+        "the back beam crosses the front beam",
+    ),
+    "back beam crossing near the base": (
+        _with(REF, back_curvature=0.015),
+        REF,
+        "the back beam crosses the front beam at (x, z) = (0, 13.34)",
+    ),
+    "front beam bowing across the back beam": (
+        _with(REF, front_curvature=-0.006),
+        REF,
+        "the back beam crosses the front beam",
+    ),
+    "beams 2 mm apart at the base": (
+        _with(BARE, back_base=(2.0, 0.0)),
+        BARE,
+        "centrelines come within",
+    ),
+    "beams 5 mm apart at the base": (
+        _with(BARE, back_base=(5.0, 0.0)),
+        BARE,
+        "centrelines come within",
+    ),
+    "front beam thickening toward the tip": (  # accepted with a constant 1.5 mm
+        _with(BARE, back_base=(7.0, 0.0), front=fr.Section(1.5, 20.0, tip_thickness=3.0)),
+        _with(BARE, front=fr.Section(1.5, 20.0, tip_thickness=3.0)),
+        "centrelines come within 1.747 mm",
+    ),
+    "short crossbeam near the tip": (
+        design.set_design(REF, {"crossbeams.front_s[6]": 119.5, "crossbeams.angle[6]": 0.0}),
+        REF,
+        "crossbeams[6] is 0.1667 mm long",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(REFUSED))
+def test_design_valid_refuses_what_the_geometry_rules_refuse(name):
+    """Each finger breaks one geometry rule and nothing else that design_valid checked
+    before it held them: it was solved as if valid."""
+    finger, base, words = REFUSED[name]
+    msg = _refusal(finger)
+    assert msg is not None and words in msg, msg
+    assert _refusal(base) is None
+    assert not bool(VALID(finger, _topology(base)))
+
+
+def _example(name):
+    return fio.load_finger(EXAMPLES / name)[0]
+
+
+ACCEPTED = {
+    "ref-A": REF,
+    "examples/finger1.toml": _example("finger1.toml"),
+    "examples/finger2.toml": _example("finger2.toml"),
+    "examples/grasp_finger1_modified.toml": _example("grasp_finger1_modified.toml"),
+    "mirrored": _with(BARE, back_base=(-40.0, 0.0)),
+    "back base below the front base": _with(BARE, back_base=(40.0, -20.0)),
+    "narrow, overlapping only near the tip": _with(BARE, back_base=(6.5, 0.0)),
+    "both beams curved": _with(BARE, front_curvature=0.004, back_curvature=-0.003),
+    "nearly tangent at the tip": _with(REF, back_curvature=0.005),
+    "tapered front beam": _with(BARE, front=fr.Section(1.5, 20.0, tip_thickness=3.0)),
+    "narrow, front beam thinning toward the tip": _with(
+        BARE, back_base=(7.0, 0.0), front=fr.Section(1.5, 20.0, tip_thickness=0.5)
+    ),
+    "test_toml's round-trip finger (tapered, curved)": fr.Finger(
+        material=fr.Material(20.0, 0.3, shear_coefficient=1.0),
+        front_base=(1.0, -2.0),
+        back_base=(35.5, 0.25),
+        tip=(3.0, 90.0),
+        front=fr.Section(2.0, 15.0, tip_thickness=1.25),
+        back=fr.Section(1.75, 15.0),
+        crossbeams=fr.Crossbeams(
+            [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
+        ),
+        back_curvature=-0.002,
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(ACCEPTED))
+def test_design_valid_accepts_what_validate_finger_accepts(name):
+    finger = ACCEPTED[name]
+    assert _refusal(finger) is None
+    assert bool(VALID(finger, _topology(finger)))
+
+
+def _back_base_x(finger):
+    return lambda x: eqx.tree_at(lambda f: f.back_base, finger, jnp.stack([x, 0.0]))
+
+
+def _set(finger, name, **also):
+    return lambda x: design.set_design(finger, {name: x, **also})
+
+
+def _tip_thickness(finger):
+    return lambda t: eqx.tree_at(lambda f: f.front.tip_thickness, finger, t)
+
+
+TAPERED_NARROW = _with(BARE, back_base=(7.0, 0.0), front=fr.Section(1.5, 20.0, tip_thickness=1.5))
+
+# name -> (how a value makes a design, the values, the base finger (whose topology is used))
+SWEEPS = {
+    "back base x": (_back_base_x(BARE), [2.0, 5.0, 6.5, 40.0], BARE),
+    "back.curvature": (_set(REF, "back.curvature"), [0.0, 0.004, 0.0052, 0.01], REF),
+    "front.curvature": (_set(REF, "front.curvature"), [-0.006, -0.003, 0.0, 0.004], REF),
+    "tip.x, curved back beam": (
+        _set(_with(REF, back_curvature=0.005), "tip.x"),
+        [-10.0, -2.0, 0.0, 5.0],
+        _with(REF, back_curvature=0.005),
+    ),
+    "front.thickness, narrow": (
+        _set(_with(BARE, back_base=(8.0, 0.0)), "front.thickness"),
+        [1.5, 2.0, 3.0],
+        _with(BARE, back_base=(8.0, 0.0)),
+    ),
+    "front tip thickness, narrow": (
+        _tip_thickness(TAPERED_NARROW),
+        [0.5, 1.5, 3.0],
+        TAPERED_NARROW,
+    ),
+    "crossbeams.front_s[6], horizontal": (
+        _set(REF, "crossbeams.front_s[6]", **{"crossbeams.angle[6]": 0.0}),
+        [105.0, 117.0, 118.0, 119.5],
+        REF,
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(SWEEPS))
+def test_design_valid_vmapped_agrees_with_validate_finger(name):
+    """A vmapped batch moving one design value across a geometry rule's limit: valid and
+    invalid members, each as validate_finger decides."""
+    make, values, base = SWEEPS[name]
+    topo = _topology(base)
+    got = jax.jit(jax.vmap(lambda x: design.design_valid(make(x), topo)))(jnp.asarray(values))
+    want = [_refusal(jax.device_get(make(jnp.asarray(x)))) is None for x in values]
+    assert True in want and False in want  # the batch mixes valid and invalid designs
+    assert np.asarray(got).tolist() == want
+
+
+def test_design_valid_under_grad():
+    """design_valid is a bool that gates differentiable values (as in a batch, where an
+    invalid design is swapped for the base finger): gradients through the gate stay finite,
+    for a straight finger (design_valid's straight-beam branch) and vmapped over
+    curvatures (both branches at once), zero for the invalid member."""
+    topo = _topology(REF)
+
+    def gated(x, name):
+        finger = design.set_design(REF, {name: x})
+        ok = design.design_valid(finger, topo)
+        return jnp.where(ok, jnp.sum(design.crossbeam_angle(finger)), 0.0)
+
+    g = jax.jit(jax.grad(gated), static_argnums=1)(0.0, "tip.x")
+    assert np.isfinite(float(g)) and float(g) != 0.0
+    kappas = jnp.array([0.0, 0.004, 0.01])  # the last crosses the front beam
+    grads = jax.jit(jax.vmap(jax.grad(gated), in_axes=(0, None)), static_argnums=1)(
+        kappas, "back.curvature"
+    )
+    assert np.all(np.isfinite(grads)) and float(grads[2]) == 0.0 and float(grads[1]) != 0.0
 
 
 # --------------------------------------------------------------------------------------
