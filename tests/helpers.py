@@ -139,3 +139,24 @@ def global_balance(finger, sol, load_factor=1.0):
             raise TypeError(load)
     scale = max(np.max(np.abs(m)) for m in moments)
     return np.sum(forces, axis=0), np.sum(moments, axis=0), scale
+
+
+def round_trip_finger(**changes):
+    """test_toml's round-trip finger: tapered front beam, curved back beam, three uneven
+    crossbeams (valid; `changes` replace Finger fields)."""
+    import finray_jax as fr
+
+    kw = dict(
+        material=fr.Material(20.0, 0.3, shear_coefficient=1.0),
+        front_base=(1.0, -2.0),
+        back_base=(35.5, 0.25),
+        tip=(3.0, 90.0),
+        front=fr.Section(2.0, 15.0, tip_thickness=1.25),
+        back=fr.Section(1.75, 15.0),
+        crossbeams=fr.Crossbeams(
+            [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
+        ),
+        back_curvature=-0.002,
+    )
+    kw.update(changes)
+    return fr.Finger(**kw)

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import round_trip_finger
 
 import finray_jax as fr
 from finray_jax import design
@@ -274,18 +275,7 @@ ACCEPTED = {
     "narrow, front beam thinning toward the tip": _with(
         BARE, back_base=(7.0, 0.0), front=fr.Section(1.5, 20.0, tip_thickness=0.5)
     ),
-    "test_toml's round-trip finger (tapered, curved)": fr.Finger(
-        material=fr.Material(20.0, 0.3, shear_coefficient=1.0),
-        front_base=(1.0, -2.0),
-        back_base=(35.5, 0.25),
-        tip=(3.0, 90.0),
-        front=fr.Section(2.0, 15.0, tip_thickness=1.25),
-        back=fr.Section(1.75, 15.0),
-        crossbeams=fr.Crossbeams(
-            [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
-        ),
-        back_curvature=-0.002,
-    ),
+    "test_toml's round-trip finger (tapered, curved)": round_trip_finger(),
 }
 
 

@@ -10,6 +10,7 @@ import equinox as eqx
 import jax
 import numpy as np
 import pytest
+from helpers import round_trip_finger
 
 import finray_jax as fr
 from finray_jax import io as fio
@@ -541,18 +542,8 @@ def test_round_trip_ref_a(case):
 
 
 def test_round_trip_everything():
-    finger = fr.Finger(
-        material=fr.Material(20.0, 0.3, shear_coefficient=1.0),
-        front_base=(1.0, -2.0),
-        back_base=(35.5, 0.25),
-        tip=(3.0, 90.0),
-        front=fr.Section(2.0, 15.0, tip_thickness=1.25),
-        back=fr.Section(1.75, 15.0),
-        crossbeams=fr.Crossbeams(
-            [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
-        ),
+    finger = round_trip_finger(
         adaptor=fr.Adaptor("clamped", "pinned", front_clamp_length=4.0 / 3.0),
-        back_curvature=-0.002,
         loads=(
             fr.PointLoad(0, 50.0 + 1e-9, (0.1, 0.2, -0.3), (1.0, 2.0, 3.0)),
             fr.PointLoad(3, 5.0, (0.0, 0.0, 1.0 / 3.0)),

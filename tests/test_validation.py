@@ -9,6 +9,7 @@ import warnings
 import equinox as eqx
 import numpy as np
 import pytest
+from helpers import round_trip_finger
 
 import finray_jax as fr
 
@@ -276,20 +277,7 @@ def test_main_beams_meeting_only_at_the_tip_are_accepted(finger, kw):
 
 
 def test_round_trip_finger_of_test_toml_is_accepted():
-    fr.validate_finger(
-        fr.Finger(
-            material=fr.Material(20.0, 0.3, shear_coefficient=1.0),
-            front_base=(1.0, -2.0),
-            back_base=(35.5, 0.25),
-            tip=(3.0, 90.0),
-            front=fr.Section(2.0, 15.0, tip_thickness=1.25),
-            back=fr.Section(1.75, 15.0),
-            crossbeams=fr.Crossbeams(
-                [10.0, 40.1, 70.0], [11.0, 45.0, 80.0], [1.0, 1.1, 0.9], [15.0, 14.0, 13.0]
-            ),
-            back_curvature=-0.002,
-        )
-    )
+    fr.validate_finger(round_trip_finger())
 
 
 def test_short_crossbeam(finger):
