@@ -489,9 +489,21 @@ def _closing_step_cap(finger: Finger) -> float:
     return 0.5 * min(depths) if depths else np.inf
 
 
+def _secant_point(lo, f_lo, hi, f_hi, target):
+    """The next trial closing in the bracket [lo, hi] (actuator forces f_lo < target <=
+    f_hi): the secant's root, kept at least 5 % of the bracket from either end."""
+    t = hi - (f_hi - target) * (hi - lo) / max(f_hi - f_lo, 1e-300)
+    return min(max(t, lo + 0.05 * (hi - lo)), hi - 0.05 * (hi - lo))
+
+
 def _find_closing(stepper, at, w, target, max_step=np.inf):
     """Closing displacement at which the actuator force equals `target` (secant on a
-    bracket, each trial warm started; path steps of at most max_step)."""
+    bracket, each trial warm started; path steps of at most max_step).
+
+    Each secant trial starts from the nearer end of the bracket (the solved state there;
+    at a lower end of 0, the undeformed finger) and, when that is more than max_step
+    away, follows the path to it in steps of at most max_step, as a prescribed closing
+    does. Returns (t, solution, ok): on a failure, the last accepted state."""
     lo, f_lo, sol_lo = 0.0, 0.0, None
     hi, sol = 1.0, None
     # Grow the bracket until the actuator force exceeds the target.
@@ -508,12 +520,17 @@ def _find_closing(stepper, at, w, target, max_step=np.inf):
             return t, sol, False
     sol_hi = sol
     for _ in range(40):
-        t = hi - (f_hi - target) * (hi - lo) / max(f_hi - f_lo, 1e-300)
-        t = min(max(t, lo + 0.05 * (hi - lo)), hi - 0.05 * (hi - lo))
-        init = sol_lo if sol_lo is not None else sol_hi
-        sol, ok = stepper.solve(at(t), init.unknowns)
+        t = _secant_point(lo, f_lo, hi, f_hi, target)
+        if t - lo <= hi - t:  # (from lo upward: the path of a prescribed closing)
+            t_got, sol, ok = stepper.follow(at, lo, t, sol_lo, t - lo, 1e-4, max_step=max_step)
+        else:  # from hi downward
+            u, sol, ok = stepper.follow(
+                lambda u, hi=hi: at(hi - u), 0.0, hi - t, sol_hi, hi - t, 1e-4, max_step=max_step
+            )
+            t_got = hi - u
         if not ok:
-            return t, sol, False
+            return t_got, sol, False
+        t = t_got
         f = float(contact_result(at(t), sol, w).actuator_force)
         if abs(f - target) <= 1e-8 * max(target, 1e-3):
             return t, sol, True

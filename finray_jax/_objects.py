@@ -11,7 +11,8 @@ the right and z up.
 
 Distances are exact outside the object and smooth there (C1 for the rounded shapes,
 convex polygons and half-planes); every norm is a safe one, so gradients stay finite at
-the surface.
+the surface. The ellipse's is exact inside too, its centre and axes included, with finite
+gradients there (where the closest point is not unique, those of one of them).
 """
 
 import dataclasses
@@ -44,6 +45,19 @@ def rsqrt(x):
     rsqrt (4.3 ns an element against 1.1 ns for a square root and a division, measured
     on this project's machine), and rewrites 1 / sqrt(x) into it."""
     return jnp.sqrt(x) / x
+
+
+def _atan2_first_quadrant(y, x):
+    """atan2(y, x) for x, y >= 0; 0 at the origin, with a zero (not NaN) gradient."""
+    origin = (x <= 0.0) & (y <= 0.0)
+    return jnp.where(origin, 0.0, jnp.arctan2(y, jnp.where(origin, 1.0, x)))
+
+
+def _acos_below_1(num, den):
+    """acos(num / den) where 0 <= num < den, else 0; finite gradients either way."""
+    below = num < den
+    ratio = jnp.where(below, num / jnp.where(below, den, 1.0), 0.0)
+    return jnp.where(below, jnp.arccos(ratio), 0.0)
 
 
 def _local_scalars(q_center, angle, x, z):
@@ -158,24 +172,66 @@ class Ellipse(AbstractObject):
     def distance_and_normal(cls, q, x, z):
         a, b = q[2], q[3]
         c, s, lx, lz = _local_scalars(q[0:2], q[4], x, z)
-        ax, az = jnp.abs(lx), jnp.abs(lz)
-        # Closest boundary point (a cos t, b sin t), t in [0, pi/2], by Newton on the
-        # stationarity condition g(t) = (a^2 - b^2) sin t cos t - a x sin t + b z cos t,
-        # (x, z) = (ax, az) the point's local coordinates folded into the first quadrant.
-        t = jnp.arctan2(a * az, b * ax)
-        for _ in range(8):
+        # Fold the point into the first quadrant (the signs are constants, so d|l|/dl is
+        # +-1, also on an axis) and swap the axes if needed so that the major one comes
+        # first: the point (X, Z) and semi-axes A >= B.
+        sx, sz = jnp.where(lx < 0.0, -1.0, 1.0), jnp.where(lz < 0.0, -1.0, 1.0)
+        swap = a < b
+        big, small = jnp.where(swap, b, a), jnp.where(swap, a, b)
+        X, Z = jnp.where(swap, sz * lz, sx * lx), jnp.where(swap, sx * lx, sz * lz)
+        e2 = big * big - small * small
+
+        def g_dg(t, e2, big, small, X, Z):
             st, ct = jnp.sin(t), jnp.cos(t)
-            g = (a * a - b * b) * st * ct - a * ax * st + b * az * ct
-            dg = (a * a - b * b) * (ct * ct - st * st) - a * ax * ct - b * az * st
-            dg = jnp.where(jnp.abs(dg) < 1e-30, -1e-30, dg)
-            t = jnp.clip(t - g / dg, 0.0, 0.5 * jnp.pi)
-        cx, cz = a * jnp.cos(t), b * jnp.sin(t)
-        # The boundary's normal there; at the stationary point it is the gradient.
-        gx, gz = cx / (a * a), cz / (b * b)
+            g = e2 * st * ct - big * X * st + small * Z * ct
+            return g, e2 * (ct * ct - st * st) - big * X * ct - small * Z * st
+
+        # The closest boundary point (A cos t, B sin t) has t in [0, pi/2], the one root
+        # there of g(t) = (A^2 - B^2) sin t cos t - A X sin t + B Z cos t (g > 0 below
+        # it, < 0 above; on an axis t = 0 or pi/2 can be a second, spurious root: a
+        # farthest point). Newton on g from the near end of a bracket of the root, a
+        # step that leaves the bracket bisects it instead, and every g narrows it:
+        # - outside, atan(B Z / (A X)) <= t <= t_ray = atan(A Z / (B X)), from t_ray;
+        # - inside, max(t_ray, acos(A X / (A^2 - B^2))) <= t <= acos(X / A) (the inward
+        #   normal from the closest point meets the major axis between the centre and
+        #   X), from the lower bound: this is exact on the axes and at the centre.
+        # The search is not differentiated (its derivative, through steps that branch,
+        # made XLA's reverse pass about 1000x slower); one more Newton step after it
+        # carries the derivative of the root (the implicit function theorem).
+        sg = jax.lax.stop_gradient
+        args = (sg(e2), sg(big), sg(small), sg(X), sg(Z))
+        _, A, B, Xs, Zs = args
+        t_ray = _atan2_first_quadrant(A * Zs, B * Xs)
+        inside = (Xs / A) ** 2 + (Zs / B) ** 2 < 1.0
+        lo = jnp.where(
+            inside,
+            jnp.maximum(t_ray, _acos_below_1(A * Xs, args[0])),
+            _atan2_first_quadrant(B * Zs, A * Xs),
+        )
+        hi = jnp.where(inside, _acos_below_1(Xs, A), t_ray)
+        t = jnp.where(inside, lo, t_ray)
+        for _ in range(8):
+            g, dg = g_dg(t, *args)
+            up = g >= 0.0
+            lo, hi = jnp.where(up, t, lo), jnp.where(up, hi, t)
+            t_new = t - jnp.where(g == 0.0, 0.0, g / jnp.where(dg < 0.0, dg, -1.0))
+            take = ((dg < 0.0) | (g == 0.0)) & (t_new >= lo) & (t_new <= hi)
+            t = jnp.where(take, t_new, 0.5 * (lo + hi))
+        # The differentiable step: its derivative always, its value where it stays in
+        # the bracket (a bounded divisor keeps the derivative finite where dg ~ 0).
+        g, dg = g_dg(t, e2, big, small, X, Z)
+        newton = dg < -1e-100
+        step = -g / jnp.where(newton, dg, -1.0)
+        keep = newton & (t + step >= lo) & (t + step <= hi)
+        t = t + step - sg(jnp.where(keep, 0.0, step))
+        cx, cz = big * jnp.cos(t), small * jnp.sin(t)
+        # The boundary's normal there; at the root it is the gradient.
+        gx, gz = cx / (big * big), cz / (small * small)
         inv = _safe_rsqrt(gx * gx + gz * gz)
         gx, gz = gx * inv, gz * inv
-        d = (ax - cx) * gx + (az - cz) * gz
-        return (d, *_to_world(c, s, jnp.sign(lx) * gx, jnp.sign(lz) * gz))
+        d = (X - cx) * gx + (Z - cz) * gz
+        nx, nz = jnp.where(swap, gz, gx), jnp.where(swap, gx, gz)
+        return (d, *_to_world(c, s, sx * nx, sz * nz))
 
     def bounds(self):
         pts = self.outline(400)

@@ -164,6 +164,12 @@ def _type_name(v) -> str:
 class _Reader:
     def __init__(self, source: str):
         self.source = source
+        # The document and its allowed top-level keys, once its top-level table is
+        # checked: a top-level key written after a [table] is, in TOML, a key of that
+        # table, and the messages about it say so (when the document has no such key at
+        # its top level: a crossbeam's `front` is a misspelt front_s, not the [front]).
+        self.doc: dict = {}
+        self.top_keys: tuple = ()
 
     def error(self, path: str, problem: str, value=dataclasses.MISSING) -> FingerFileError:
         if value is dataclasses.MISSING:
@@ -176,14 +182,22 @@ class _Reader:
         """Check that `value` is a table with only `allowed` keys and all `required` ones."""
         if not isinstance(value, dict):
             raise self.error(path, f"expected a table [{path}], got {_type_name(value)}", value)
+        if not path:
+            self.doc, self.top_keys = value, tuple(allowed)
         hints = hints or {}
         for key in value:
             if key not in allowed:
                 full = f"{path}.{key}" if path else key
                 if key in hints:
                     raise self.error(full, hints[key], value[key])
-                close = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
-                hint = f" (did you mean '{close[0]}'?)" if close else ""
+                if path and key in self.top_keys and key not in self.doc:
+                    hint = (
+                        f" ('{key}' is a top-level key, and {_BEFORE_TABLES}: TOML reads it "
+                        f"as {full} here)"
+                    )
+                else:
+                    close = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
+                    hint = f" (did you mean '{close[0]}'?)" if close else ""
                 where = f"in [{path}]" if path else "at the top level"
                 known = ", ".join(allowed)
                 raise self.error(
@@ -192,8 +206,24 @@ class _Reader:
         for key in required:
             if key not in value:
                 full = f"{path}.{key}" if path else key
-                raise self.error(full, "missing required key" + _KEY_HELP.get(key, ""))
+                more = _KEY_HELP.get(key, "") + self.misplaced(path, key)
+                raise self.error(full, "missing required key" + more)
         return value
+
+    def misplaced(self, path: str, key: str) -> str:
+        """For a missing top-level key that the document has inside one of its tables
+        (written after that table's header), a hint saying so; else ""."""
+        if path:
+            return ""
+        for name, tbl in self.doc.items():
+            if isinstance(tbl, list) and tbl and all(isinstance(x, dict) for x in tbl):
+                name, tbl = f"{name}[{len(tbl) - 1}]", tbl[-1]
+            if isinstance(tbl, dict) and key in tbl:
+                return (
+                    f" (the file has {name}.{key}: {_BEFORE_TABLES}, or TOML reads it as a "
+                    f"key of the table above it)"
+                )
+        return ""
 
     def array_of_tables(self, value, path: str) -> list:
         if isinstance(value, dict):
@@ -259,6 +289,9 @@ class _Reader:
             if not math.isfinite(float(x)):
                 raise self.error(path, f"element {i} must be a finite number", value)
         return [float(x) for x in value]
+
+
+_BEFORE_TABLES = "a top-level key must come before the first [table] in the file"
 
 
 _KEY_HELP = {
@@ -772,7 +805,9 @@ def _require(r: _Reader, table: dict, path: str, keys, hints: dict) -> None:
     for key in keys:
         if key not in table:
             full = f"{path}.{key}" if path else key
-            raise r.error(full, "missing required key" + hints.get(key, ""))
+            raise r.error(
+                full, "missing required key" + hints.get(key, "") + r.misplaced(path, key)
+            )
 
 
 def _write_atomic(path, text: str) -> None:

@@ -74,6 +74,96 @@ def test_closed_form_normal_is_the_distance_gradient(obj):
     assert np.any(np.asarray(d_ref) < 0) and np.any(np.asarray(d_ref) > 0)
 
 
+ELLIPSES = [  # (centre, semi-axes, angle): a circle, both orientations, a/b = 10, turned
+    ((0.0, 0.0), (3.0, 3.0), 0.0),
+    ((0.0, 0.0), (3.0, 1.0), 0.0),
+    ((0.0, 0.0), (1.0, 3.0), 0.0),
+    ((0.0, 0.0), (10.0, 1.0), 0.0),
+    ((2.0, -1.0), (1.0, 10.0), 0.7),
+    ((0.5, -1.0), (4.0, 1.5), 0.4),
+]
+
+
+def _ellipse_test_points(a, b, rng):
+    """Local points: the centre, both axes (inside and out), random inside and out."""
+    s = np.linspace(-1.6, 1.6, 33)
+    r, phi = np.sqrt(rng.uniform(0.0, 1.0, 120)), rng.uniform(0.0, 2.0 * np.pi, 120)
+    return np.concatenate(
+        [
+            [[0.0, 0.0]],
+            np.stack([s * a, 0.0 * s], -1),
+            np.stack([0.0 * s, s * b], -1),
+            np.stack([a * r * np.cos(phi), b * r * np.sin(phi)], -1),  # inside
+            rng.uniform(-2.0, 2.0, (120, 2)) * max(a, b),
+        ]
+    )
+
+
+@pytest.mark.parametrize("center, axes, angle", ELLIPSES)
+def test_ellipse_distance_is_exact_inside_and_out(center, axes, angle):
+    """Against the nearest of 100k points on the boundary (the sign from the implicit
+    equation), at points inside (the centre and the axes included), on the axes and
+    outside: it used to give -a for -b at the centre, and wrong values deep inside near
+    the major axis (its Newton search stalled on the farthest point there)."""
+    a, b = axes
+    c, s = np.cos(angle), np.sin(angle)
+    rot = np.array([[c, -s], [s, c]])
+    local = _ellipse_test_points(a, b, np.random.default_rng(7))
+    pts = np.asarray(center) + local @ rot.T
+    t = np.linspace(0.0, 2.0 * np.pi, 100_000, endpoint=False)
+    boundary = np.stack([a * np.cos(t), b * np.sin(t)], -1)
+    spacing = np.max(np.linalg.norm(np.diff(boundary, axis=0, append=boundary[:1]), axis=1))
+    nearest = np.array(
+        [np.min(np.linalg.norm(boundary - p, axis=1)) for p in local]  # (local frame)
+    )
+    ref = np.sign((local[:, 0] / a) ** 2 + (local[:, 1] / b) ** 2 - 1.0) * nearest
+    d = np.asarray(fr.Ellipse(center, axes, angle).signed_distance(pts))
+    # the nearest sample is at most half a spacing farther than the nearest point
+    assert np.all(np.abs(d) <= nearest + 1e-9)
+    assert np.max(np.abs(d - ref)) <= 0.5 * spacing
+    assert d[0] == pytest.approx(-min(a, b), abs=1e-12)
+    assert np.all(np.sign(d[nearest > spacing]) == np.sign(ref[nearest > spacing]))
+
+
+@jax.jit
+@jax.vmap
+def _ellipse_grads_one(q, p):
+    d, g_p = jax.value_and_grad(fr.Ellipse.distance, argnums=1)(q, p)
+    return d, g_p, jax.grad(fr.Ellipse.distance)(q, p)
+
+
+def _ellipse_grads(q, p):
+    """Distances at points p (n, 2), their gradients in p and in the parameters q."""
+    return _ellipse_grads_one(jnp.broadcast_to(q, (p.shape[0],) + q.shape), p)
+
+
+@pytest.mark.parametrize("center, axes, angle", ELLIPSES)
+def test_ellipse_distance_gradient_is_the_normal_and_finite(center, axes, angle):
+    """Near the surface the gradient is the outward normal (and the closed-form normal);
+    everywhere, the centre and the axes included, the gradients in the point and in the
+    parameters are finite and the closed-form normal is a unit vector."""
+    a, b = axes
+    ell = fr.Ellipse(center, axes, angle)
+    q = ell.params()
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    t = np.linspace(0.0, 2.0 * np.pi, 73)
+    normal = np.stack([b * np.cos(t), a * np.sin(t)], -1)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    depth = 0.02 * min(a, b) ** 2 / max(a, b)  # within the smallest radius of curvature
+    for off in (-depth, 0.0, depth):
+        local = np.stack([a * np.cos(t), b * np.sin(t)], -1) + off * normal
+        d, g, _ = _ellipse_grads(q, jnp.asarray(np.asarray(center) + local @ rot.T))
+        np.testing.assert_allclose(d, off, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(g, normal @ rot.T, rtol=0, atol=1e-9)
+    local = _ellipse_test_points(a, b, np.random.default_rng(8))
+    p = jnp.asarray(np.asarray(center) + local @ rot.T)
+    _, g_p, g_q = _ellipse_grads(q, p)
+    _, nx, nz = jax.vmap(ell.distance_and_normal, in_axes=(None, 0, 0))(q, p[:, 0], p[:, 1])
+    assert np.all(np.isfinite(g_p)) and np.all(np.isfinite(g_q))
+    np.testing.assert_allclose(np.hypot(nx, nz), 1.0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(g_p, axis=1), 1.0, rtol=0, atol=1e-9)
+
+
 def test_half_plane_distance():
     h = fr.HalfPlane((1.0, 0.0), (2.0, 0.0))
     assert float(h.signed_distance(np.array([3.0, 5.0]))) == pytest.approx(2.0)

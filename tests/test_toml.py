@@ -158,6 +158,81 @@ def test_back_tip_hint():
     assert_error(d, "back.tip = [0.0, 120.0]", "front.tip")
 
 
+# A top-level key written after a [table] is, in TOML, a key of that table.
+def test_top_level_key_after_a_table_is_named_as_such():
+    text = to_toml(doc())
+    assert "torsion" not in text
+    late = text.replace("[adaptor]\n", '[adaptor]\ntorsion = "rectangle"\n')
+    with pytest.raises(fio.FingerFileError) as info:
+        fio.loads_finger(late, source="bad.toml")
+    assert str(info.value) == (
+        "bad.toml: adaptor.torsion = \"rectangle\": unknown key in [adaptor] ('torsion' is a "
+        "top-level key, and a top-level key must come before the first [table] in the file: "
+        "TOML reads it as adaptor.torsion here); known keys: front_base, back_base, "
+        "front_clamp_length, back_clamp_length, support_length"
+    )
+    # after an array of tables it lands in the last one; a top-level table name too
+    for extra, where in (('torsion = "paper"', "loads[0].torsion"), ("meta = 1", "loads[0].meta")):
+        with pytest.raises(fio.FingerFileError) as info:
+            fio.loads_finger(text + extra + "\n", source="bad.toml")
+        assert f"TOML reads it as {where} here)" in str(info.value)
+    # before the first table it is read, and a misspelt key still gets a suggestion
+    finger, _ = fio.loads_finger('torsion = "rectangle"\n' + text, source="ok.toml")
+    assert finger.torsion == "rectangle"
+    d = doc()
+    d["adaptor"]["torsoin"] = "paper"
+    msg = assert_error(d, "adaptor.torsoin", "unknown key in [adaptor]")
+    assert "top-level" not in msg
+    # a key the file has at its top level is not a misplaced one
+    d = doc()
+    d["crossbeams"][2]["front"] = 90.0
+    msg = assert_error(d, "crossbeams[2].front = 90.0", "did you mean 'front_s'")
+    assert "top-level" not in msg
+
+
+def test_missing_top_level_key_found_in_a_table():
+    text = (
+        to_toml(doc())
+        .replace("[material]\nE = 12.0\nnu = 0.45\n", "")
+        .replace("[front]\n", "[front]\nmaterial = { E = 12.0, nu = 0.45 }\n")
+    )
+    with pytest.raises(fio.FingerFileError) as info:
+        fio.loads_finger(text, source="bad.toml")
+    assert str(info.value) == (
+        "bad.toml: material: missing required key (table [material] with E and nu) (the file "
+        "has front.material: a top-level key must come before the first [table] in the file, "
+        "or TOML reads it as a key of the table above it)"
+    )
+
+
+def test_study_file_top_level_key_after_a_table():
+    """Sweep and optimisation files share the reader: a sweep's `mode` after [sampling]."""
+    from finray_jax.sweep import SweepError, loads_sweep
+
+    text = (
+        'finger = "examples/ref_a.toml"\noutputs = ["tip.dx"]\n\n[sampling]\nkind = "grid"\n'
+        'mode = "planar"\n\n[[design]]\nname = "adaptor.back_clamp_length"\n'
+        "range = [0.0, 10.0]\npoints = 3\n"
+    )
+    with pytest.raises(
+        SweepError,
+        match=r"sampling\.mode = \"planar\": unknown key in "
+        r"\[sampling\] \('mode' is a top-level key, and a top-level key must "
+        r"come before the first \[table\] in the file: TOML reads it as "
+        r"sampling\.mode here\)",
+    ):
+        loads_sweep(text, source="sweep.toml", base_dir=str(ROOT))
+    moved = text.replace('outputs = ["tip.dx"]\n', "").replace(
+        "[sampling]\n", '[sampling]\noutputs = ["tip.dx"]\n'
+    )
+    with pytest.raises(
+        SweepError,
+        match=r"outputs: missing required key .*the file has "
+        r"sampling\.outputs: a top-level key must come before the first",
+    ):
+        loads_sweep(moved, source="sweep.toml", base_dir=str(ROOT))
+
+
 def test_string_where_number():
     d = doc()
     d["front"]["thickness"] = "1.5"
