@@ -14,6 +14,7 @@ per topology and reused by every solve, batch member and design.
 """
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -177,6 +178,62 @@ def _banded_matrix(plan: BandPlan, values):
     return A.at[plan.entries[2], plan.entries[3]].set(values)
 
 
+def _panel_lapack(W, nb: int):
+    """Gaussian elimination with partial pivoting of the first nb columns of W (h, w):
+    returns W with L (unit, below the diagonal) and U of those columns in place and the
+    rest of the rows updated (U12 on top, the Schur complement below), the row order
+    applied (W_in[perm]) and the sign of the pivots times that of the permutation.
+    The panel's LU by LAPACK (`lax.linalg.lu`), then a triangular solve and a product."""
+    lu, pivots, perm = lax.linalg.lu(W[:, :nb])
+    W = W[perm]
+    L11 = jnp.tril(lu[:nb], -1) + jnp.eye(nb, dtype=W.dtype)
+    U12 = jax.scipy.linalg.solve_triangular(L11, W[:nb, nb:], lower=True, unit_diagonal=True)
+    W22 = W[nb:, nb:] - lu[nb:] @ U12
+    W = jnp.concatenate(
+        [jnp.concatenate([lu[:nb], U12], axis=1), jnp.concatenate([lu[nb:], W22], axis=1)]
+    )
+    swaps = jnp.sum(pivots != jnp.arange(nb, dtype=pivots.dtype))
+    flip = jnp.where(swaps % 2 == 0, 1.0, -1.0).astype(W.dtype)
+    return W, perm, jnp.prod(jnp.sign(jnp.diagonal(lu[:nb]))) * flip
+
+
+def _panel_elementwise(W, nb: int):
+    """As `_panel_lapack`, one column at a time with element-wise updates and row swaps by
+    selection (the arithmetic of LAPACK's unblocked getf2).
+
+    On a GPU, jax factorises a vmapped batch of non-square matrices one matrix after
+    another (a cuSOLVER call each): a batch of ref-A designs ran at 720 designs/s on an
+    H100, and at 44,670 with this, a few fused kernels for the whole batch. On a CPU,
+    LAPACK's panel is about 4x faster than this (benchmarks/README.md, session 18), so
+    `_panel` picks by platform.
+    """
+    h = W.shape[0]
+    rows = jnp.arange(h)
+    perm = rows
+    sign = jnp.ones((), W.dtype)
+    for j in range(nb):
+        p = jnp.argmax(jnp.where(rows >= j, jnp.abs(W[:, j]), -1.0))
+        row_j, row_p = W[j], W[p]
+        W = jnp.where((rows == j)[:, None], row_p, jnp.where((rows == p)[:, None], row_j, W))
+        perm = jnp.where(rows == j, perm[p], jnp.where(rows == p, perm[j], perm))
+        piv = W[j, j]
+        sign = sign * jnp.where(p == j, 1.0, -1.0) * jnp.sign(piv)
+        # (a zero pivot heads a zero column: it is left as it is, as getf2 does)
+        col = W[j + 1 :, j] / jnp.where(piv == 0.0, 1.0, piv)
+        W = W.at[j + 1 :, j].set(col)
+        W = W.at[j + 1 :, j + 1 :].add(-col[:, None] * W[j, j + 1 :][None, :])
+    return W, perm.astype(jnp.int32), sign
+
+
+def _panel(W, nb: int):
+    """The LU step of `factor` on W (h, w): LAPACK on a CPU, element-wise elsewhere."""
+    return lax.platform_dependent(
+        W,
+        cpu=functools.partial(_panel_lapack, nb=nb),
+        default=functools.partial(_panel_elementwise, nb=nb),
+    )
+
+
 def factor(plan: BandPlan, Ap) -> BandLU:
     """LU with partial pivoting of the padded band-ordered matrix Ap (from `linearize` or
     `pad`), eliminating `block` columns per step within the band."""
@@ -186,19 +243,8 @@ def factor(plan: BandPlan, Ap) -> BandLU:
     def step(k, carry):
         Ap, perms, sign = carry
         c0 = k * nb
-        W = lax.dynamic_slice(Ap, (c0, c0), (h, w))
-        lu, pivots, perm = lax.linalg.lu(W[:, :nb])
-        W = W[perm]
-        L11 = jnp.tril(lu[:nb], -1) + jnp.eye(nb, dtype=dtype)
-        U12 = jax.scipy.linalg.solve_triangular(L11, W[:nb, nb:], lower=True, unit_diagonal=True)
-        W22 = W[nb:, nb:] - lu[nb:] @ U12
-        W = jnp.concatenate(
-            [jnp.concatenate([lu[:nb], U12], axis=1), jnp.concatenate([lu[nb:], W22], axis=1)]
-        )
-        swaps = jnp.sum(pivots != jnp.arange(nb, dtype=pivots.dtype))
-        flip = jnp.where(swaps % 2 == 0, 1.0, -1.0).astype(dtype)
-        sign = sign * jnp.prod(jnp.sign(jnp.diagonal(lu[:nb]))) * flip
-        return lax.dynamic_update_slice(Ap, W, (c0, c0)), perms.at[k].set(perm), sign
+        W, perm, s = _panel(lax.dynamic_slice(Ap, (c0, c0), (h, w)), nb)
+        return lax.dynamic_update_slice(Ap, W, (c0, c0)), perms.at[k].set(perm), sign * s
 
     init = (Ap, jnp.zeros((steps, h), jnp.int32), jnp.asarray(plan.sign, dtype))
     Ap, perms, sign = lax.fori_loop(0, steps, step, init)

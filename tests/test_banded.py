@@ -122,6 +122,58 @@ def test_banded_lu_on_a_hidden_band_matrix():
     assert float(fac.sign) == np.linalg.slogdet(J)[0]
 
 
+def _panels():
+    """Panels (h, w) of the banded LU's steps: random, with ties and a zero column, and
+    one where every pivot search must swap (the largest entry is always the last row)."""
+    rng = np.random.default_rng(4)
+    random = rng.standard_normal((35, 58))
+    ties = np.round(rng.standard_normal((35, 58)))  # equal magnitudes: the first one wins
+    ties[:, 2] = 0.0  # a zero column: no pivot, left as it is
+    swaps = rng.uniform(0.1, 0.2, (12, 20))
+    swaps[np.arange(12), np.arange(12)] = 0.01
+    swaps[-1, :6] = 5.0
+    return {"random": random, "ties-zero-column": ties, "swaps": swaps}
+
+
+@pytest.mark.parametrize("name", ["random", "ties-zero-column", "swaps"])
+def test_elementwise_panel_matches_lapack(name):
+    """The GPU's element-wise LU step (`_panel_elementwise`, chosen off the CPU) gives
+    LAPACK's factors, row order and determinant sign (`_panel_lapack`, the CPU's), also
+    vmapped, and the reconstruction P W = L [U; Schur] holds."""
+    W = jnp.asarray(_panels()[name])
+    nb = min(18, W.shape[0] // 2)
+    ref = jax.jit(_banded._panel_lapack, static_argnums=1)(W, nb)
+    got = jax.jit(_banded._panel_elementwise, static_argnums=1)(W, nb)
+    np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(ref[1]))
+    np.testing.assert_allclose(np.asarray(got[0]), np.asarray(ref[0]), rtol=1e-12, atol=1e-12)
+    assert float(got[2]) == float(ref[2])
+    out = np.asarray(got[0])
+    L = np.eye(W.shape[0])
+    L[:, :nb] += np.tril(out[:, :nb], -1)
+    R = np.zeros_like(out)
+    R[:nb] = np.triu(out[:nb])
+    R[nb:, nb:] = out[nb:, nb:]
+    np.testing.assert_allclose(L @ R, np.asarray(W)[np.asarray(got[1])], atol=1e-12)
+    many = jax.vmap(lambda w: _banded._panel_elementwise(w, nb))(jnp.stack([W, -W]))
+    np.testing.assert_allclose(np.asarray(many[0][0]), out, rtol=1e-13, atol=1e-13)
+    np.testing.assert_array_equal(np.asarray(many[1][1]), np.asarray(ref[1]))
+    assert float(many[2][1]) == float(ref[2]) * (-1.0) ** nb
+
+
+def test_factor_picks_lapack_on_cpu(monkeypatch):
+    """On the CPU the factorisation calls LAPACK (the element-wise step is about 4x slower
+    there): a factor traced with the element-wise step poisoned still gives the right
+    answer on the CPU backend."""
+    assert jax.devices()[0].platform == "cpu"
+    poisoned = lambda W, nb: (W * jnp.nan, jnp.zeros(W.shape[0], jnp.int32), jnp.nan * W[0, 0])
+    monkeypatch.setattr(_banded, "_panel_elementwise", poisoned)
+    plan = _banded.plan_band([{0, 1}] * 3 + [{0, 1}] * 3, 3, 2)
+    J = np.random.default_rng(2).standard_normal((6, 6))
+    fac = jax.jit(lambda A: _banded.factor(plan, A))(_banded.pad(plan, jnp.asarray(J)))
+    x = _banded.solve_factored(plan, fac, jnp.ones(6))
+    np.testing.assert_allclose(np.asarray(x), np.linalg.solve(J, np.ones(6)), rtol=1e-10)
+
+
 @pytest.mark.parametrize("mode", ["planar", pytest.param("spatial", marks=pytest.mark.slow)])
 def test_both_linear_solvers_give_the_same_equilibrium(mode):
     finger = fr.ref_finger_a("L1")
