@@ -108,6 +108,33 @@ def enable_compilation_cache() -> str | None:
     return path
 
 
+# Commands that solve many designs at once (vmapped on an accelerator); the others solve
+# one finger, or one grasp, at a time.
+_BATCH_COMMANDS = frozenset({"sweep"})
+DEVICE_CHOICES = ("auto", "cpu", "default")
+
+
+def choose_device(command: str) -> str:
+    """Where a command runs, from $FINRAY_DEVICE: "default" (jax's default device), "cpu",
+    or "auto" (unset): a sweep on jax's default device, every other command on the CPU.
+
+    A single planar solve is a chain of small kernels, which a GPU runs slower than a
+    CPU core (ref-A L1 on an H100: 11.3 ms against 5.8 ms on one of that machine's CPU
+    cores; 3-D: 16.7 against 23.9 ms; benchmarks/README.md, session 18), while a sweep's
+    vmapped chunks run there 60x faster. Returns the platform chosen ("cpu" or jax's
+    default backend)."""
+    import jax
+
+    want = os.environ.get("FINRAY_DEVICE", "auto").strip().lower() or "auto"
+    if want not in DEVICE_CHOICES:
+        raise UserError(f"FINRAY_DEVICE = {want!r}: expected one of {', '.join(DEVICE_CHOICES)}")
+    if want == "default" or (want == "auto" and command in _BATCH_COMMANDS):
+        return jax.default_backend()
+    if jax.default_backend() != "cpu":
+        jax.config.update("jax_default_device", jax.devices("cpu")[0])
+    return "cpu"
+
+
 def _finite_float(text: str) -> float:
     try:
         x = float(text)
@@ -963,6 +990,7 @@ def _main(argv) -> int:
         _check_output_paths(args)
         if args.command != "validate":
             enable_compilation_cache()
+            choose_device(args.command)
         return COMMANDS[args.command](args)
     except (UserError, fio.FingerFileError, fr.FingerError, DesignError) as e:
         print(f"finray: error: {e}", file=sys.stderr)

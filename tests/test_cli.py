@@ -323,6 +323,34 @@ def test_compilation_cache_settings(monkeypatch, tmp_path):
         jax.config.update("jax_persistent_cache_min_compile_time_secs", old_min)
 
 
+def test_device_choice(monkeypatch, capsys):
+    """FINRAY_DEVICE: on a machine whose default backend is an accelerator (simulated here:
+    this one has none), single-solve commands move to the CPU and a sweep stays; "default"
+    keeps jax's default for all; a bad value is a user error that names it."""
+    old = jax.config.jax_default_device
+    try:
+        monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+        monkeypatch.delenv("FINRAY_DEVICE", raising=False)
+        assert cli.choose_device("sweep") == "gpu"
+        assert jax.config.jax_default_device is old
+        monkeypatch.setenv("FINRAY_DEVICE", "default")
+        assert cli.choose_device("solve") == "gpu"
+        assert jax.config.jax_default_device is old
+        for value in ("auto", "cpu", " CPU "):
+            monkeypatch.setenv("FINRAY_DEVICE", value)
+            assert cli.choose_device("solve") == "cpu"
+            assert jax.config.jax_default_device == jax.devices("cpu")[0]
+            jax.config.update("jax_default_device", old)
+        monkeypatch.setenv("FINRAY_DEVICE", "cpu")
+        assert cli.choose_device("sweep") == "cpu"
+        monkeypatch.setenv("FINRAY_DEVICE", "tpu0")
+        assert cli.main(["solve", REF_A]) == cli.EXIT_USER
+        err = capsys.readouterr().err
+        assert "FINRAY_DEVICE = 'tpu0'" in err and "auto, cpu, default" in err
+    finally:
+        jax.config.update("jax_default_device", old)
+
+
 # --------------------------------------------------------------------------------------
 # demo and limit (compile other programs: slow)
 # --------------------------------------------------------------------------------------
