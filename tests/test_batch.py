@@ -178,6 +178,31 @@ def test_bad_arguments():
         batch.solve_batch(BASE, {"material.E": np.ones(2)}, OUTS, init=spatial)
 
 
+def test_placement_follows_the_default_device():
+    """Designs go where jax's default device is (set to the CPU on a GPU machine, the
+    CPU's platform decides map against vmap and the chunk size), or to the devices given."""
+    cpu = jax.devices("cpu")[0]
+    assert batch._placement(None) == (None, cpu, "cpu")
+    assert batch._placement([cpu]) == (None, cpu, "cpu")
+    with pytest.raises(ValueError, match="devices must name at least one device"):
+        batch._placement([])
+    old = jax.config.jax_default_device
+    try:
+        for setting in ("cpu", cpu):
+            jax.config.update("jax_default_device", setting)
+            assert batch._default_device() == cpu
+    finally:
+        jax.config.update("jax_default_device", old)
+    assert batch.default_chunk_size("cpu") == 256
+    assert batch.default_chunk_size("gpu") == 4096
+    # off the CPU a chunk is vmapped unless told otherwise; on it, only the direct stage
+    assert batch._vectorize(batch._full, None, "gpu", None) is True
+    assert batch._vectorize(batch._full, None, "gpu", False) is False
+    assert batch._vectorize(batch._full, None, "cpu", True) is False
+    assert batch._vectorize(batch._direct, None, "cpu", True) is True
+    assert batch._vectorize(batch._direct, None, "cpu", None) is False
+
+
 @pytest.mark.slow
 def test_overloaded_member_goes_to_its_fold_alone(clean):
     """A 120x softer finger is far beyond its limit load: continuation to the fold, while
