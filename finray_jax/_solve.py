@@ -269,7 +269,8 @@ def _newton_lean(
     (scaled), or when Newton is in its quadratic regime and the predicted next step,
     step_k^3 / step_(k-1)^2, is below a tenth of that: this saves the iteration that would
     only confirm convergence (a 1 % design change is then re-solved in 2 iterations
-    instead of 3). Also when the full Newton step is below a tenth of the tolerance: with
+    instead of 3). Also when the full Newton step is below a tenth of the tolerance (norm-
+    wise, atol + rtol max|y|): with
     a stiff contact penalty the residual's round-off floor can lie above atol, and a
     start at the root would otherwise never be confirmed. The converged iterate is
     y - dy, whose residual is not evaluated here (the residual reported in the Solution
@@ -308,9 +309,12 @@ def _newton_lean(
         dy = _apply_inverse(problem, factors, r, solver)
         norm = jnp.sum(r * r)
         # Newton's own correction (before any line search or cap) in units of the
-        # tolerance: below a tenth, y_t is the root to within round-off, even where the
-        # residual sits on a round-off floor above atol (stiff contact penalties).
-        full = jnp.max(jnp.abs(dy) / (options.atol + options.rtol * jnp.abs(y_t)))
+        # tolerance, norm-wise: below a tenth, y_t is the root to within round-off, even
+        # where the residual sits on a round-off floor above atol (stiff contact
+        # penalties), and y_t - dy is closer still (by the step squared). Norm-wise, as
+        # the unknowns are scaled to order one: per component, an unknown near zero would
+        # need its round-off below atol, which a tight atol (1e-17) never reaches.
+        full = jnp.max(jnp.abs(dy)) / (options.atol + options.rtol * jnp.max(jnp.abs(y_t)))
         first = st.k == 0
         start = first | st.restart
         decreased = norm <= (1.0 - 1e-4 * st.a) * st.norm
