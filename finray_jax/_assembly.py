@@ -176,7 +176,7 @@ def _row_segments(topo: Topology):
     return rows
 
 
-def _event_s(finger: Finger, beam: int, kind: str, index: int):
+def event_s(finger: Finger, beam: int, kind: str, index: int):
     if kind == "support_end":
         return finger.adaptor.support_length
     if kind == "cb":
@@ -207,7 +207,7 @@ def build_topology(finger: Finger, mode: str) -> Topology:
         per_beam[BACK].append(("support_end", 0))
     events = []
     for b, evs in enumerate(per_beam):
-        key = lambda e, b=b: (float(_event_s(finger, b, *e)), _KIND_ORDER[e[0]], e[1])
+        key = lambda e, b=b: (float(event_s(finger, b, *e)), _KIND_ORDER[e[0]], e[1])
         evs = sorted(evs, key=key)
         if contact is not None and b in (FRONT, BACK):
             evs = _subdivide(finger, b, evs, finger.contact.segment_length)
@@ -238,7 +238,7 @@ def _subdivide(finger, beam, events, max_length):
     m equal pieces between two neighbouring events (the count m is fixed here, from the
     concrete design; the cut positions follow the design values)."""
     length = beam_lengths(finger)[beam]
-    cuts = [0.0] + [float(_event_s(finger, beam, *e)) for e in events] + [length]
+    cuts = [0.0] + [float(event_s(finger, beam, *e)) for e in events] + [length]
     out = []
     for k in range(len(events) + 1):
         m = max(1, int(np.ceil((cuts[k + 1] - cuts[k]) / max_length - 1e-9)))

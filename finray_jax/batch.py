@@ -33,7 +33,8 @@ from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import _solve
-from ._finger import Finger
+from ._assembly import build_topology, event_s
+from ._finger import Finger, FingerError, beam_name, validate_finger
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import SolverOptions, solve_finger, topology_of
@@ -47,11 +48,75 @@ from .design import (
     set_design,
 )
 
-__all__ = ["BatchResult", "INVALID", "iter_batch", "solve_batch", "status_names"]
+__all__ = ["BatchResult", "Diagnosis", "INVALID", "iter_batch", "solve_batch", "status_names"]
 
 #: Result code of a design that was not solved (invalid, or outside the base topology).
 INVALID = -1
 _AXIS = "design"
+
+
+def _one_line(text) -> str:
+    return " ".join(str(text).split())
+
+
+def _event_name(kind: str, index: int) -> str:
+    return {
+        "cb": f"crossbeam {index}",
+        "point": f"loads[{index}]",
+        "dist_start": f"the start of loads[{index}]",
+        "dist_end": f"the end of loads[{index}]",
+    }.get(kind, "the support's end (adaptor.support_length)")
+
+
+_designed = eqx.filter_jit(set_design)  # (one compile per set of names, not per design)
+
+
+class Diagnosis:
+    """Why a design of a batch was not solved (status "invalid"), as one line: the finger
+    validation's message (`validate_finger`: the field and its value), else the change of
+    the base finger's topology (which event now comes before which, where). Called with
+    one design's values (name -> value); eager, on the host."""
+
+    def __init__(self, base: Finger, mode: str, topology=None):
+        self.base, self.mode, self._topology = base, mode, topology
+
+    @functools.cached_property
+    def base_events(self):
+        topo = self._topology
+        return (build_topology(self.base, self.mode) if topo is None else topo).events
+
+    def __call__(self, values: Mapping[str, object]) -> str:
+        vals = {k: np.asarray(v, dtype=np.float64) for k, v in values.items()}
+        try:
+            finger = jax.device_get(_designed(self.base, vals))
+            validate_finger(finger)
+            moved = self._topology_change(finger)
+        except FingerError as e:
+            return _one_line(e)
+        except Exception as e:  # noqa: BLE001 - a reason, whatever went wrong
+            return _one_line(f"invalid design ({type(e).__name__}: {e})")
+        if moved is not None:
+            return moved
+        return (
+            "invalid design: a value is out of range or it changes the base finger's topology "
+            "(the order of crossbeams, load points and the support's end along a beam)"
+        )
+
+    def _topology_change(self, finger: Finger) -> str | None:
+        events = build_topology(finger, self.mode).events
+        for beam, (old, new) in enumerate(zip(self.base_events, events)):
+            old = [e for e in old if e[0] != "sub"]
+            new = [e for e in new if e[0] != "sub"]
+            for a, c in zip(old, new):
+                if a != c:
+                    where = {0: "the front beam", 1: "the back beam"}.get(beam, beam_name(beam))
+                    sa, sc = (float(np.asarray(event_s(finger, beam, *e))) for e in (a, c))
+                    return (
+                        "changes the base finger's topology (the order of events along a "
+                        f"beam): on {where}, {_event_name(*c)} at s = {sc:.6g} now comes "
+                        f"before {_event_name(*a)} at s = {sa:.6g}"
+                    )
+        return None
 
 
 class BatchResult(eqx.Module):
@@ -62,6 +127,7 @@ class BatchResult(eqx.Module):
         the equilibrium at the fold (see the "load_factor" output).
     result: RESULTS codes (int), INVALID (-1) for designs that were not solved.
     iterations: Newton iterations; max_residual: largest scaled residual (NaN if invalid).
+    diagnosis: what `message` asks why a design is invalid (set by `solve_batch`).
     """
 
     inputs: dict[str, np.ndarray]
@@ -69,6 +135,7 @@ class BatchResult(eqx.Module):
     result: np.ndarray
     iterations: np.ndarray
     max_residual: np.ndarray
+    diagnosis: Diagnosis | None = eqx.field(default=None, static=True)
 
     @property
     def size(self) -> int:
@@ -82,6 +149,8 @@ class BatchResult(eqx.Module):
     def message(self, i: int) -> str:
         """What the result of design i means (and what to do)."""
         code = int(self.result[i])
+        if code == INVALID and self.diagnosis is not None:
+            return self.diagnosis({k: v[i] for k, v in self.inputs.items()})
         if code == INVALID:
             return (
                 "invalid design: a value is not finite or out of range (thickness, depth or E "
@@ -309,6 +378,7 @@ def iter_batch(
     fill = {k: np.asarray(v) for k, v in get_design(base_finger, list(arrays)).items()}
     continuation = dataclasses.replace(options, direct_first=False)
     y0 = _init_unknowns(init, topo)
+    diagnosis = Diagnosis(base_finger, topo.mode, topo)
     if y0 is not None and mesh is None:  # (on the chunk's device, wherever init was)
         y0 = jax.device_put(y0, target)
 
@@ -350,6 +420,7 @@ def iter_batch(
                 result=code,
                 iterations=its,
                 max_residual=res,
+                diagnosis=diagnosis,
             ),
         )
 
@@ -412,4 +483,5 @@ def solve_batch(
         result=cat([p.result for p in parts]).astype(np.int64),
         iterations=cat([p.iterations for p in parts]).astype(np.int64),
         max_residual=cat([p.max_residual for p in parts]),
+        diagnosis=parts[0].diagnosis if parts else None,
     )

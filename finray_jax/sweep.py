@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import functools
 import hashlib
 import io
 import json
@@ -22,16 +21,14 @@ import os
 import time
 from collections.abc import Callable
 
-import equinox as eqx
-import jax
 import numpy as np
 
 from . import io as fio
-from ._finger import Finger, FingerError, beam_name, validate_finger
+from ._finger import Finger
 from ._solution import RESULTS
 from ._solve import resolve_mode
-from .batch import INVALID, iter_batch
-from .design import OUTPUTS, DesignError, check_design_names, get_design, set_design
+from .batch import INVALID, Diagnosis, iter_batch
+from .design import OUTPUTS, DesignError, check_design_names, get_design
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
@@ -318,70 +315,7 @@ _UNRECORDED = (
 )
 
 
-@eqx.filter_jit
-def _designed(finger: Finger, values):
-    return set_design(finger, values)
-
-
-def _event_name(kind: str, index: int) -> str:
-    return {
-        "cb": f"crossbeam {index}",
-        "point": f"loads[{index}]",
-        "dist_start": f"the start of loads[{index}]",
-        "dist_end": f"the end of loads[{index}]",
-    }.get(kind, "the support's end (adaptor.support_length)")
-
-
-class _Diagnosis:
-    """Why a design was not solved (status "invalid"): the finger validation's message
-    (`validate_finger`), else the change of the base finger's topology."""
-
-    def __init__(self, sweep: Sweep):
-        self.sweep = sweep
-
-    @functools.cached_property
-    def base_events(self):
-        from ._assembly import build_topology
-
-        return build_topology(self.sweep.finger, self.sweep.mode).events
-
-    def __call__(self, values: dict) -> str:
-        vals = {k: np.asarray(v, dtype=np.float64) for k, v in values.items()}
-        try:
-            finger = jax.device_get(_designed(self.sweep.finger, vals))
-            validate_finger(finger)
-            moved = self._topology_change(finger)
-        except FingerError as e:
-            return _one_line(e)
-        except Exception as e:  # noqa: BLE001 - a reason, whatever went wrong
-            return _one_line(f"invalid design ({type(e).__name__}: {e})")
-        if moved is not None:
-            return moved
-        return (
-            "invalid design: a value is out of range or it changes the base finger's topology "
-            "(the order of crossbeams, load points and the support's end along a beam)"
-        )
-
-    def _topology_change(self, finger: Finger) -> str | None:
-        from ._assembly import _event_s, build_topology
-
-        events = build_topology(finger, self.sweep.mode).events
-        for beam, (old, new) in enumerate(zip(self.base_events, events)):
-            old = [e for e in old if e[0] != "sub"]
-            new = [e for e in new if e[0] != "sub"]
-            for a, c in zip(old, new):
-                if a != c:
-                    where = {0: "the front beam", 1: "the back beam"}.get(beam, beam_name(beam))
-                    sa, sc = (float(np.asarray(_event_s(finger, beam, *e))) for e in (a, c))
-                    return (
-                        "changes the base finger's topology (the order of events along a "
-                        f"beam): on {where}, {_event_name(*c)} at s = {sc:.6g} now comes "
-                        f"before {_event_name(*a)} at s = {sa:.6g}"
-                    )
-        return None
-
-
-def _reasons(res, diagnose: _Diagnosis) -> list[str]:
+def _reasons(res, diagnose: Diagnosis) -> list[str]:
     out = []
     for k in range(res.size):
         code = int(res.result[k])
@@ -392,7 +326,7 @@ def _reasons(res, diagnose: _Diagnosis) -> list[str]:
     return out
 
 
-def _resume(sweep: Sweep, csv_path: str, designs, diagnose: _Diagnosis) -> int:
+def _resume(sweep: Sweep, csv_path: str, designs, diagnose: Diagnosis) -> int:
     """Number of complete rows already in the CSV (truncating a torn last line); checks
     that they are the first designs of this sweep. A CSV written before the `reason`
     column existed is rewritten with it (atomically), so the sweep continues."""
@@ -447,7 +381,7 @@ def _resume(sweep: Sweep, csv_path: str, designs, diagnose: _Diagnosis) -> int:
     return done
 
 
-def _legacy_reason(status: str, k: int, designs, diagnose: _Diagnosis) -> str:
+def _legacy_reason(status: str, k: int, designs, diagnose: Diagnosis) -> str:
     """The reason of row k of a CSV written before the reason column."""
     if status == "converged":
         return ""
@@ -539,7 +473,7 @@ def run_sweep(
     )
     csv_path = os.path.join(out_dir, RESULTS_CSV)
     designs = sweep.designs()
-    diagnose = _Diagnosis(sweep)
+    diagnose = Diagnosis(sweep.finger, sweep.mode)
     done = _resume(sweep, csv_path, designs, diagnose)
     bar = _Progress(sweep.size, done, progress)
     if done < sweep.size:

@@ -99,7 +99,13 @@ def test_invalid_members_are_flagged_and_leave_the_others_alone(clean):
         "invalid",
     ]
     assert res.result[1] == batch.INVALID and res.iterations[1] == 0
-    assert "topology" in res.message(4)
+    # each says why: the field and its value, or the rule and the values that break it
+    assert res.message(1) == "crossbeams[1].thickness must be finite, got nan"
+    assert res.message(4).startswith(
+        "crossbeams 2 and 3 cross or touch: front_s 70.0 -> 60.0, back_s 47.434"
+    )
+    assert res.message(5) == "material.E must be positive, got -1.0"
+    assert res.message(0) == "converged"
     for k in OUTS:
         assert np.all(np.isnan(res.outputs[k][[1, 4, 5]]))
         np.testing.assert_allclose(res.outputs[k][[0, 2, 3]], ref.outputs[k][[0, 2, 3]], rtol=1e-12)

@@ -19,7 +19,7 @@ import pytest
 from finray_jax import cli
 from finray_jax import io as fio
 from finray_jax import sweep as fsweep
-from finray_jax.batch import solve_batch
+from finray_jax.batch import Diagnosis, solve_batch
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -302,7 +302,7 @@ def test_reasons_round_trip_through_the_csv(sweep_file, tmp_path):
     data = fsweep.read_results(path)
     assert data["reason"].tolist() == reasons
     assert data["status"].tolist() == ["invalid", "failed", "beyond_limit_load", "converged"]
-    assert fsweep._resume(sw, str(path), d, fsweep._Diagnosis(sw)) == 4
+    assert fsweep._resume(sw, str(path), d, Diagnosis(sw.finger, sw.mode)) == 4
 
 
 def test_the_reason_of_an_invalid_design_names_the_rule_or_the_topology_change():
@@ -310,7 +310,7 @@ def test_the_reason_of_an_invalid_design_names_the_rule_or_the_topology_change()
         "range = [0.0, 10.0]", "range = [55.0, 65.0]"
     )
     sw = fsweep.loads_sweep(text, source="s.toml", base_dir=str(ROOT / "examples"))
-    why = fsweep._Diagnosis(sw)
+    why = Diagnosis(sw.finger, sw.mode)
     # ref-A's point load acts at s = 60, where crossbeam 3 sits: moving it past the load
     # changes the order of events along the front beam
     assert why({"crossbeams.front_s[3]": 62.0, "crossbeams.thickness[1]": 1.0}) == (
