@@ -69,7 +69,7 @@ class Sweep:
     seed: int
     outputs: tuple[str, ...]
     mode: str
-    chunk_size: int
+    chunk_size: int | None  # None: solve_batch's default for the platform
     digest: str
 
     @property
@@ -135,7 +135,9 @@ def _parse(doc, r, source, base_dir) -> Sweep:
 
     mode = r.string(doc.get("mode", settings.mode), "mode", fio.MODES)
     mode = resolve_mode(finger, mode)
-    chunk_size = r.integer(doc.get("chunk_size", 64), "chunk_size", minimum=1)
+    chunk_size = doc.get("chunk_size")
+    if chunk_size is not None:
+        chunk_size = r.integer(chunk_size, "chunk_size", minimum=1)
 
     outputs = doc["outputs"]
     if not isinstance(outputs, list) or not outputs:

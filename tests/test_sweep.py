@@ -435,7 +435,12 @@ def test_random_sampling_and_hash():
         source="r.toml",
         base_dir=str(ROOT / "examples"),
     )
-    assert same.digest == sw.digest
+    assert same.digest == sw.digest and same.chunk_size == 2
+    # without it, solve_batch's default for the platform (256 on a CPU, 4096 on a GPU)
+    unset = fsweep.loads_sweep(
+        text.replace("chunk_size = 4\n", ""), source="r.toml", base_dir=str(ROOT / "examples")
+    )
+    assert unset.chunk_size is None and unset.digest == sw.digest
     with pytest.raises(fsweep.SweepError, match=r"sampling.n = 0: must be an integer >= 1"):
         fsweep.loads_sweep(
             text.replace("n = 5", "n = 0"), source="r.toml", base_dir=str(ROOT / "examples")
