@@ -229,7 +229,7 @@ def _with_stiffness(finger: Finger, k) -> Finger:
     return _with_contact(finger, stiffness=k)
 
 
-def _unit(direction, name):
+def unit_direction(direction, name):
     w = np.asarray(direction, dtype=np.float64)
     if w.shape != (2,) or not np.all(np.isfinite(w)) or np.linalg.norm(w) == 0:
         raise FingerError(f"{name} must be a non-zero (x, z) direction, got {w.tolist()}")
@@ -334,7 +334,7 @@ def _growth(iterations: int) -> float:
     return 1.0 if iterations <= 9 else 0.5
 
 
-def _check_objects(finger: Finger, w):
+def check_objects(finger: Finger, w):
     """The finger is valid (this is the grasp's one validation); its objects lie ahead of
     its front side and within its span."""
     from ._finger import validate_finger
@@ -392,8 +392,8 @@ def grasp(
     """
     if (closing is None) == (actuator_force is None):
         raise FingerError("grasp needs exactly one of closing= and actuator_force=")
-    w = _unit(direction, "direction")
-    _check_objects(finger, w)
+    w = unit_direction(direction, "direction")
+    check_objects(finger, w)
     if closing is not None:
         d = float(np.asarray(closing))
         if not np.isfinite(d) or d < 0:
@@ -402,7 +402,7 @@ def grasp(
         fa = float(np.asarray(actuator_force))
         if not np.isfinite(fa) or fa < 0:
             raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
-    # (_check_objects validated the finger)
+    # (check_objects validated the finger)
     stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
     k = float(
         default_stiffness(finger) if finger.contact.stiffness is None else finger.contact.stiffness
@@ -574,7 +574,7 @@ def release_force(
     The trace starts at pull 0 (the grasp re-solved with the pull's friction law) and
     stops when the contact is lost, or at max_pull (default: the finger's height).
     """
-    w = _unit(pull_direction, "pull_direction")
+    w = unit_direction(pull_direction, "pull_direction")
     if not (np.isfinite(step) and step > 0):
         raise FingerError(f"step must be a positive distance (mm), got {step}")
     finger = _with_contact(g.finger, slip_direction=w)

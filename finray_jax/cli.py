@@ -567,7 +567,7 @@ def _check_grasp_objects(path, finger, settings) -> str | None:
     Returns what was checked, for a summary line (None: no [grasp], nothing to check:
     objects in a file without one are obstacles of a loaded solve, where any side of the
     finger is fine)."""
-    from ._grasp import _check_objects, _unit
+    from ._grasp import check_objects, unit_direction
 
     gs = settings.grasp
     if gs is None:
@@ -578,8 +578,8 @@ def _check_grasp_objects(path, finger, settings) -> str | None:
             "finger on"
         )
     try:
-        w = _unit(gs.direction, "grasp.direction")
-        _check_objects(finger, w)
+        w = unit_direction(gs.direction, "grasp.direction")
+        check_objects(finger, w)
     except fr.FingerError as e:
         raise UserError(f"{path}: {e}") from None
     n = len(finger.objects)

@@ -388,15 +388,15 @@ def _check_objects_ahead(problem: OptimizeProblem, r, doc, obj: dict) -> None:
     otherwise the first grasp fails on them, naming a generated objects[0]."""
     from ._finger import FingerError
     from ._geometry import main_beam_samples
-    from ._grasp import _check_objects, _unit
+    from ._grasp import check_objects, unit_direction
 
     try:
-        w = _unit(problem.direction, "direction")
+        w = unit_direction(problem.direction, "direction")
     except FingerError as e:
         raise r.error("finger", f"{problem.finger_path}: [grasp] {e}", doc["finger"]) from None
     for i, finger in enumerate(problem.object_fingers()):
         try:
-            _check_objects(finger, w)
+            check_objects(finger, w)
         except FingerError as e:
             problem_text = str(e)
             if problem.diameters is None:  # the finger file's own object
