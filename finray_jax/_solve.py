@@ -708,6 +708,28 @@ def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init,
 
 
 @functools.partial(jax.jit, static_argnums=(0,))
+def deformation_of(topo, finger: Finger, unknowns):
+    """The deformation that scaled unknowns carry, (S, n_unknown) in physical units: each
+    segment's start state minus its undeformed one (displacement, rotation, and the
+    internal force and moment, which are zero undeformed)."""
+    problem = _make_problem(topo, None, finger)
+    y = unknowns.reshape(problem.table.length.shape[0], -1)
+    return (y - problem.undeformed()) * problem.scale()
+
+
+def start_from_deformation(topo, finger: Finger, deformation):
+    """Scaled unknowns of `finger` deformed as `deformation` says (from `deformation_of`
+    on another finger of the same topology): every segment's undeformed start state plus
+    the other finger's displacement, rotation and internal wrench at its own segment start.
+    For a changed design this is a better Newton start than the other finger's unknowns
+    themselves, which also carry its undeformed geometry: on ref-A L1 with attachments
+    moved by up to 1 mm, 3.25 Newton iterations on average against 4.2 (and 4.0 from the
+    undeformed shape)."""
+    problem = _make_problem(topo, None, finger)
+    return (problem.undeformed() + deformation / problem.scale()).reshape(-1)
+
+
+@functools.partial(jax.jit, static_argnums=(0,))
 def undeformed_unknowns(topo, finger: Finger):
     """The scaled unknowns of the undeformed finger (the start `init=None` means): a
     caller that passes them instead of None shares one compiled core for both starts."""

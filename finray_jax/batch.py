@@ -185,8 +185,11 @@ def _prepare(topo, base: Finger, values):
 
 def _direct(topo, integrator, options, outputs, base: Finger, init, values):
     """Newton at full load (as `solve_finger` tries first), from the undeformed state or
-    from `init` (scaled unknowns, shared by the batch)."""
+    from the base solution's deformation `init` (shared by the batch) carried onto the
+    design's own undeformed shape."""
     finger, valid = _prepare(topo, base, values)
+    if init is not None:
+        init = _solve.start_from_deformation(topo, finger, init)
     sol, ok, _ = _solve._direct_core(topo, integrator, options, finger, init)
     return _pack(sol, finger, outputs, valid), ok & valid
 
@@ -260,8 +263,9 @@ def _chunk_core(
 # --------------------------------------------------------------------------------------
 
 
-def _init_unknowns(init, topo):
-    """The shared start of a batch's Newton solves: init's scaled unknowns, or None."""
+def _init_deformation(init, topo, base: Finger):
+    """The shared start of a batch's Newton solves: the deformation of init (a Solution of
+    the base finger; `_solve.deformation_of`), or None."""
     if init is None:
         return None
     if not isinstance(init, Solution):
@@ -273,7 +277,7 @@ def _init_unknowns(init, topo):
             f"init is a {init.mode} solution with {y.size} unknowns; the batch's topology is "
             f"{topo.mode} with {n}: pass a Solution of the base finger in the batch's mode"
         )
-    return jnp.asarray(y)
+    return _solve.deformation_of(topo, base, jnp.asarray(y))
 
 
 def _check_values(base: Finger, values: Mapping) -> tuple[dict[str, np.ndarray], int]:
@@ -377,7 +381,7 @@ def iter_batch(
     n_dev = 1 if mesh is None else mesh.size
     fill = {k: np.asarray(v) for k, v in get_design(base_finger, list(arrays)).items()}
     continuation = dataclasses.replace(options, direct_first=False)
-    y0 = _init_unknowns(init, topo)
+    y0 = _init_deformation(init, topo, base_finger)
     diagnosis = Diagnosis(base_finger, topo.mode, topo)
     if y0 is not None and mesh is None:  # (on the chunk's device, wherever init was)
         y0 = jax.device_put(y0, target)
@@ -454,10 +458,11 @@ def solve_batch(
     CPU, where that is faster (see `_vectorize`; on CPU only the direct stage on one
     device can be vmapped; a vmapped chunk takes no chord steps, as if
     options.reuse_jacobian were False). mode: "planar" or "spatial" ("auto" resolves on the base
-    finger). init: a Solution of the base finger (same topology and mode) to start every
-    design's Newton solve from, instead of the undeformed shape: fewer iterations for
-    designs near the base (a design it does not solve is continued from the undeformed
-    shape as usual). Returns a BatchResult with per-design status.
+    finger). init: a Solution of the base finger (same topology and mode) whose
+    deformation (each segment's displacement, rotation and internal wrench) starts every
+    design's Newton solve, carried onto the design's own undeformed shape: fewer
+    iterations for designs near the base (a design it does not solve is continued from the
+    undeformed shape as usual). Returns a BatchResult with per-design status.
     """
     parts = [
         r
