@@ -55,7 +55,8 @@ INVALID = -1
 _AXIS = "design"
 
 
-def _one_line(text) -> str:
+def one_line(text) -> str:
+    """text on one line (its whitespace runs made single spaces), for a CSV cell or a log."""
     return " ".join(str(text).split())
 
 
@@ -92,9 +93,9 @@ class Diagnosis:
             validate_finger(finger)
             moved = self._topology_change(finger)
         except FingerError as e:
-            return _one_line(e)
+            return one_line(e)
         except Exception as e:  # noqa: BLE001 - a reason, whatever went wrong
-            return _one_line(f"invalid design ({type(e).__name__}: {e})")
+            return one_line(f"invalid design ({type(e).__name__}: {e})")
         if moved is not None:
             return moved
         return (
@@ -149,9 +150,9 @@ class BatchResult(eqx.Module):
     def message(self, i: int) -> str:
         """What the result of design i means (and what to do)."""
         code = int(self.result[i])
-        if code == INVALID and self.diagnosis is not None:
-            return self.diagnosis({k: v[i] for k, v in self.inputs.items()})
         if code == INVALID:
+            if self.diagnosis is not None:
+                return self.diagnosis({k: v[i] for k, v in self.inputs.items()})
             return (
                 "invalid design: a value is not finite or out of range (thickness, depth or E "
                 "not positive, attachment outside its beam), or it changes the base finger's "

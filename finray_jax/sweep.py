@@ -27,7 +27,7 @@ from . import io as fio
 from ._finger import Finger
 from ._solution import RESULTS
 from ._solve import resolve_mode
-from .batch import INVALID, Diagnosis, iter_batch
+from .batch import INVALID, Diagnosis, iter_batch, one_line
 from .design import OUTPUTS, DesignError, check_design_names, get_design
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
@@ -290,10 +290,6 @@ def _complete_lines(data: bytes) -> list[str]:
 # --------------------------------------------------------------------------------------
 
 
-def _one_line(text) -> str:
-    return " ".join(str(text).split())
-
-
 _RESULT_NAMES = {int(item._value): name for name, item in RESULTS._name_to_item.items()}
 
 
@@ -304,7 +300,7 @@ def _solver_reason(code: int) -> str:
     code = int(code)
     if code == int(RESULTS.successful._value):
         return ""
-    text = _one_line(RESULTS._index_to_message[code])
+    text = one_line(RESULTS._index_to_message[code])
     end = text.find(". ")
     return f"{_RESULT_NAMES.get(code, code)}: {text if end < 0 else text[: end + 1]}"
 
