@@ -62,9 +62,8 @@ class SolverOptions(eqx.Module):
         tangents for planar ref-A instead of 144) straight into band order and factored
         by banded LU with partial pivoting (`_banded`); "dense": `jax.jacfwd` with one
         tangent per unknown and a dense LU. Both give the same Newton steps to round-off.
-        With "banded" the implicit gradient solves with the banded factors too, and the
-        continuation's tangent takes J and the sign of det J from them (its bordered
-        system, and the continuation's corrector, stay dense).
+        The implicit gradient and the continuation (its corrector's bordered system, by
+        bordering, its tangent and the sign of det J) solve with the same factors.
     reuse_jacobian: near the root, take chord steps: keep the factors of the last
         Jacobian and evaluate only the residual (planar ref-A: 0.10 ms instead of 0.45 ms
         for a Jacobian pass and its factors; with contact 0.5 ms instead of 4 ms) while
@@ -137,22 +136,6 @@ class SolverOptions(eqx.Module):
 def _natural_fn(y, args):
     problem, lam = args
     return problem.residual(y.reshape(problem.table.length.shape[0], -1), lam).reshape(-1)
-
-
-def _newton(fn, y0, args, options: SolverOptions):
-    sol = optx.root_find(
-        fn,
-        optx.Newton(rtol=options.rtol, atol=options.atol),
-        y0,
-        args,
-        max_steps=options.max_newton_steps,
-        adjoint=optx.ImplicitAdjoint(),
-        throw=False,
-    )
-    ok = (sol.result == optx.RESULTS.successful) & jnp.all(
-        jnp.isfinite(jax.flatten_util.ravel_pytree(sol.value)[0])
-    )
-    return sol.value, ok, sol.stats["num_steps"]
 
 
 class _Newton(eqx.Module):
@@ -522,45 +505,84 @@ def _live_param_columns(problem: Problem, d_problem, d_lam) -> np.ndarray:
     return np.flatnonzero(np.any(packed != 0.0, axis=0))
 
 
-def _jacobians(problem, y, lam):
-    J, Jl = jax.jacfwd(lambda a, b: _natural_fn(a, (problem, b)), argnums=(0, 1))(y, lam)
-    return J, Jl
+def _bordered(problem, lam, y, linear_solver):
+    """The residual r at (y, lam), the factors of J = dr/dy there, b = J^-1 dr/dlam and the
+    sign of det J: what a Newton step on the continuation's bordered system and the path's
+    tangent need. (One Jacobian pass, as Newton's own, and one tangent in lam.)"""
+    r, factors, sign = _linearise(problem, lam, y, linear_solver)
+    Y = y.reshape(problem.table.length.shape[0], -1)
+    starts = problem.start_states(Y)
+
+    def residual(lam):
+        # Plain forward mode through the integrator, one tangent: the segment flow's own
+        # JVP rule would integrate a direction for every parameter column (compiles 2x
+        # longer).
+        return problem.residual_from_states(starts, problem.integrated(Y, lam)[:, -1], lam)
+
+    r_lam = jax.jvp(residual, (lam,), (jnp.ones_like(lam),))[1]
+    return r, factors, _apply_inverse(problem, factors, r_lam, linear_solver), sign
 
 
-def _tangent(problem, y, lam, w, t_prev, linear_solver):
-    """Unit tangent of the equilibrium path in (w y, lam), oriented along t_prev, and the
-    sign of det(dr/dy) at (y, lam), which flips exactly at folds of the path. (The
-    bordered system is solved densely; with the banded option, J comes from the coloured
-    forward pass and the sign from its banded LU.)"""
-    if linear_solver == "banded":
-        plan = problem.topo.band
-        _, JS = _banded.compressed(plan, lambda a: _natural_fn(a, (problem, lam)), y)
-        J = _banded.dense(plan, JS)
-        Jl = jax.jvp(lambda b: _natural_fn(y, (problem, b)), (lam,), (jnp.ones_like(lam),))[1]
-        sign = _banded.factor(plan, _banded.band(plan, JS)).sign
-    else:
-        J, Jl = _jacobians(problem, y, lam)
-        sign = jnp.linalg.slogdet(J)[0]
-    A = jnp.concatenate([jnp.concatenate([J / w, Jl[:, None]], axis=1), t_prev[None]], axis=0)
-    rhs = jnp.zeros(A.shape[0]).at[-1].set(1.0)
-    t = jnp.linalg.solve(A, rhs)
-    return t / jnp.linalg.norm(t), sign
+class _Corrector(eqx.Module):
+    y: jax.Array
+    lam: jax.Array
+    k: jax.Array  # linearisations
+    done: jax.Array
+    ok: jax.Array
+    b: jax.Array  # J^-1 dr/dlam at the last linearisation
+    sign: jax.Array  # sign of det J there
 
 
-def _arc_fn(z, args):
-    y, lam = z
-    problem, y_prev, lam_prev, t, ds, w = args
-    r = _natural_fn(y, (problem, lam))
-    c = jnp.dot(t[:-1], w * (y - y_prev)) + t[-1] * (lam - lam_prev) - ds
-    return r, c
+def _correct(problem, y, lam, arc, options: SolverOptions, active):
+    """Newton on the bordered system r(y, lam) = 0, t . (w (y - y_prev), lam - lam_prev) = ds
+    from the predictor (y, lam); arc = (y_prev, lam_prev, t, ds, w).
+
+    Each iteration solves with the factors of J alone (bordering): with a = J^-1 r and
+    b = J^-1 dr/dlam, the step is dlam = (g - w t_y . a) / (t_lam - w t_y . b) and
+    dy = a - b dlam, g the constraint's residual. Converged when the step is below
+    atol + rtol |z| and both residuals below atol. The last linearisation lies within that
+    tolerance of the root, so its b and sign serve the tangent there."""
+    y_prev, lam_prev, t, ds, w = arc
+    solver = options.linear_solver
+    wt = w * t[:-1]
+
+    def body(c: _Corrector):
+        r, factors, b, sign = _bordered(problem, c.lam, c.y, solver)
+        a = _apply_inverse(problem, factors, r, solver)
+        g = jnp.dot(wt, c.y - y_prev) + t[-1] * (c.lam - lam_prev) - ds
+        d_lam = (g - jnp.dot(wt, a)) / (t[-1] - jnp.dot(wt, b))
+        d_y = a - b * d_lam
+        y, lam = c.y - d_y, c.lam - d_lam
+        scale = lambda z: options.atol + options.rtol * jnp.abs(z)
+        small = jnp.maximum(jnp.max(jnp.abs(d_y) / scale(y)), jnp.abs(d_lam) / scale(lam)) < 1.0
+        resid = jnp.maximum(jnp.max(jnp.abs(r)), jnp.abs(g)) < options.atol
+        finite = jnp.all(jnp.isfinite(y)) & jnp.isfinite(lam)
+        conv = small & resid & finite
+        k = c.k + 1
+        return _Corrector(
+            y, lam, k, conv | ~finite | (k >= options.max_newton_steps), conv, b, sign
+        )
+
+    init = _Corrector(
+        y=y,
+        lam=lam,
+        k=jnp.asarray(0),
+        done=~jnp.asarray(active),
+        ok=jnp.asarray(False),
+        b=jnp.zeros_like(y),
+        sign=jnp.asarray(0.0),
+    )
+    return lax.while_loop(lambda c: ~c.done, body, init)
 
 
 class _Arc(eqx.Module):
     sign: jax.Array  # sign of det(dr/dy) on the branch being traced
     y: jax.Array
     lam: jax.Array
-    t: jax.Array
+    t: jax.Array  # unit tangent in the weighted coordinates (w y, lam)
+    w: jax.Array  # weight of the shape part (set by the first tangent)
     ds: jax.Array
+    started: jax.Array  # the tangent at the start is known
     near_fold: jax.Array
     done: jax.Array
     reached: jax.Array
@@ -576,65 +598,77 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
     Stops when the path crosses `target` (reached) or when it folds back (the load factor
     stops increasing), refining the fold by step halving down to min_arc_step. Returns the
     final state: for `reached`, the point before and the first point past the target.
+
+    Every step is a predictor along the tangent, a corrector (`_correct`) and the tangent
+    at the new point, from the corrector's last linearisation: in the weighted coordinates
+    (w y, lam) it is (-w J^-1 dr/dlam, 1), normalised and oriented along the last one. The
+    loop's first pass is a step of length zero at the start, which gives the first tangent
+    and the weight: w makes its shape and load parts equal. (So the loop holds the only
+    Jacobian pass of the continuation: one compiled instance.)
     """
-    n = y0.shape[0]
-    lam0 = jnp.zeros(())
-    e = jnp.zeros(n + 1).at[-1].set(1.0)
-    t_raw, sign0 = _tangent(problem, y0, lam0, 1.0, e, options.linear_solver)
-    # Weight the shape part so the first tangent has equal shape and load parts; the
-    # tangent in the weighted coordinates (w y, lam) is the raw one rescaled.
-    w = jnp.abs(t_raw[-1]) / jnp.maximum(jnp.linalg.norm(t_raw[:-1]), 1e-30)
-    t0 = jnp.concatenate([w * t_raw[:-1], t_raw[-1:]])
-    t0 = t0 / jnp.linalg.norm(t0)
     opts = options
+    lam0 = jnp.zeros(())
+    e = jnp.zeros(y0.shape[0] + 1).at[-1].set(1.0)
 
     def cond(s: _Arc):
         return ~s.done & (s.steps < opts.max_continuation_steps)
 
     def body(s: _Arc):
-        pred = (s.y + s.ds * s.t[:-1] / w, s.lam + s.ds * s.t[-1])
-        z, ok, nit = _newton(_arc_fn, pred, (problem, s.y, s.lam, s.t, s.ds, w), opts)
-        y1, lam1 = z
-        t1, sign1 = _tangent(problem, y1, lam1, w, s.t, opts.linear_solver)
+        first = ~s.started
+        ds = jnp.where(first, 0.0, s.ds)
+        pred = (s.y + ds * s.t[:-1] / s.w, s.lam + ds * s.t[-1])
+        c = _correct(problem, *pred, (s.y, s.lam, s.t, ds, s.w), opts, True)
+        y1, lam1, ok, nit = c.y, c.lam, c.ok, c.k
+        w = jnp.where(first, 1.0 / jnp.maximum(jnp.linalg.norm(c.b), 1e-30), s.w)
+        t1 = jnp.concatenate([-w * c.b, jnp.ones((1,), c.b.dtype)])
+        t1 = t1 / jnp.linalg.norm(t1)
+        t1 = jnp.where(jnp.dot(t1, s.t) < 0.0, -t1, t1)
+        sign1 = c.sign
+        sign = jnp.where(first, sign1, s.sign)
         # A step that turns the tangent sharply, or needs many corrector iterations, may
         # have jumped to another branch: retry shorter. On the traced branch det(dr/dy)
         # keeps its sign until the fold, where the load factor turns back; a sign change
         # while the load still rises (or the reverse) is a jump to another branch.
         smooth = (jnp.dot(t1, s.t) >= opts.min_tangent_cosine) & (nit <= opts.max_corrector_steps)
-        same = sign1 == s.sign
+        same = sign1 == sign
         rising = t1[-1] > 0.0
-        folded = ok & smooth & ~same & ~rising
-        accept = ok & smooth & same & rising
-        reached = accept & (lam1 >= target)
-        grow = accept & (nit <= 4) & ~s.near_fold
+        folded = ok & smooth & ~same & ~rising & ~first
+        accept = ok & (first | (smooth & same & rising))
+        reached = accept & (lam1 >= target) & ~first
+        grow = accept & (nit <= 4) & ~s.near_fold & ~first
         ds_new = jnp.where(
             accept, jnp.where(grow, jnp.minimum(1.6 * s.ds, opts.max_arc_step), s.ds), 0.5 * s.ds
         )
         near_fold = s.near_fold | folded
         tiny = ds_new < opts.min_arc_step
         keep = accept & ~reached
+        count = jnp.where(first, 0, 1)
         return _Arc(
-            sign=s.sign,
+            sign=sign,
             y=jnp.where(keep, y1, s.y),
             lam=jnp.where(keep, lam1, s.lam),
             t=jnp.where(keep, t1, s.t),
+            w=w,
             ds=ds_new,
+            started=s.started | ok,
             near_fold=near_fold,
-            done=reached | (~accept & tiny),
+            done=reached | (~accept & tiny) | (first & ~ok),
             reached=reached,
             y_over=jnp.where(reached, y1, s.y_over),
             lam_over=jnp.where(reached, lam1, s.lam_over),
-            steps=s.steps + 1,
-            iterations=s.iterations + nit,
+            steps=s.steps + count,
+            iterations=s.iterations + count * nit,
         )
 
     false = jnp.asarray(False)
     init = _Arc(
-        sign=sign0,
+        sign=jnp.asarray(0.0),
         y=y0,
         lam=lam0,
-        t=t0,
+        t=e,
+        w=jnp.ones(()),
         ds=jnp.asarray(opts.initial_arc_step),
+        started=false,
         near_fold=false,
         done=~jnp.asarray(active),
         reached=false,
@@ -736,39 +770,61 @@ def undeformed_unknowns(topo, finger: Finger):
     return _make_problem(topo, None, finger).undeformed().reshape(-1)
 
 
+class _Round(eqx.Module):
+    stage: jax.Array  # 0: Newton at full load; 1: continuation, then Newton; 2: finished
+    y: jax.Array
+    lam: jax.Array
+    code: object  # RESULTS item
+    iterations: jax.Array
+
+
 @_core_jit
 def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
-    """Direct Newton, else arc-length continuation, all traced (for jit, vmap, grad)."""
+    """Direct Newton, else arc-length continuation, all traced (for jit, vmap, grad).
+
+    One loop of at most two rounds: Newton at full load from the start, then, if it is
+    not accepted, the continuation and Newton again from the point it reached. Both Newton
+    solves are one compiled instance (the loop's body), which roughly halves the compile
+    time against writing them out one after the other."""
     problem = _make_problem(topo, integrator, finger)
     quiet = _nograd(problem)
     y_und, y_start = _start(quiet, init)
     one = jnp.ones(())
 
-    def continuation(active):
-        s = _continuation(quiet, y_und, one, options, active)
+    def body(st: _Round):
+        cont = st.stage == 1
+        s = _continuation(quiet, y_und, one, options, cont)
         frac = (1.0 - s.lam) / jnp.maximum(s.lam_over - s.lam, 1e-300)
         guess = jnp.where(s.reached, s.y + frac * (s.y_over - s.y), s.y)
-        final = _newton_lean(quiet, guess, one, options, active & s.reached)
-        code = _fold_result(s)
-        off_branch = s.reached & (~final.ok | (final.sign != s.sign))
-        code = RESULTS.where(off_branch, RESULTS.nonlinear_divergence, code)
-        y = jnp.where(s.reached, final.y, s.y)
-        lam = jnp.where(s.reached, one, s.lam)
-        return y, lam, code, s.iterations + final.k
-
-    if options.direct_first:
-        direct, direct_ok = _direct(quiet, y_start, options)
-        y, lam_end, code, nit_c = lax.cond(
-            direct_ok,
-            lambda: (direct.y, one, RESULTS.successful, jnp.asarray(0)),
-            lambda: continuation(~direct_ok),
+        newton = _newton_lean(
+            quiet, jnp.where(cont, guess, y_start), one, options, ~cont | s.reached
         )
-        iterations = direct.k + nit_c
-    else:
-        y, lam_end, code, iterations = continuation(jnp.asarray(True))
+        # Direct: accepted on the branch it started from (the sign of det J kept).
+        direct_ok = newton.ok & (newton.sign == newton.sign_first)
+        # After the continuation: the fold, or Newton's root on the traced branch.
+        code = _fold_result(s)
+        off_branch = s.reached & (~newton.ok | (newton.sign != s.sign))
+        code = RESULTS.where(off_branch, RESULTS.nonlinear_divergence, code)
+        code = RESULTS.where(cont, code, RESULTS.successful)
+        y = jnp.where(cont & ~s.reached, s.y, newton.y)
+        return _Round(
+            stage=jnp.where(cont | direct_ok, 2, 1),
+            y=y,
+            lam=jnp.where(cont & ~s.reached, s.lam, one),
+            code=code,
+            iterations=st.iterations + newton.k + jnp.where(cont, s.iterations, 0),
+        )
 
-    y, traj = _attach_implicit_gradient(problem, lam_end, y, options.linear_solver)
-    return _outputs(problem, y, lam_end, code, iterations, traj)
+    init = _Round(
+        stage=jnp.asarray(0 if options.direct_first else 1),
+        y=y_start,
+        lam=one,
+        code=RESULTS.successful,
+        iterations=jnp.asarray(0),
+    )
+    st = lax.while_loop(lambda st: st.stage < 2, body, init)
+    y, traj = _attach_implicit_gradient(problem, st.lam, st.y, options.linear_solver)
+    return _outputs(problem, y, st.lam, st.code, st.iterations, traj)
 
 
 @_core_jit
