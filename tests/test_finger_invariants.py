@@ -504,6 +504,32 @@ def test_beyond_the_limit_load():
     assert FOLD_L2[0] < 2.5 * lam < FOLD_L2[1]
 
 
+@pytest.mark.parametrize("case", ["L2", "L3"])
+def test_bordered_linearisation_gives_the_path_tangent(case):
+    """The continuation's corrector and tangent read b = J^-1 dr/dlam from `_bordered`,
+    whose dr/dlam is one plain forward-mode tangent through the integrator. Checked
+    against a dense Jacobian and the segment flow's own JVP rule at a deformed state with
+    the loads half on (L3: a distributed load, where r is nonlinear in lam), and the
+    tangent built from it against the null vector of [J, dr/dlam]."""
+    finger = _ref(case)
+    topo = fr.topology_of(finger, "planar")
+    problem = _solve._nograd(_solve._make_problem(topo, fr.Integrator(), finger))
+    half = jax.numpy.asarray(0.5)
+    y = _solve.undeformed_unknowns(topo, finger)
+    y = _solve._newton_lean(problem, y, half, fr.SolverOptions()).y  # an equilibrium
+    y = y + 1e-3 * np.cos(np.arange(y.size))  # and a point off it
+    r, factors, b, sign = _solve._bordered(problem, half, y, "banded")
+    fn = lambda a, lam: _solve._natural_fn(a, (problem, lam))
+    J = jax.jacfwd(fn)(y, half)
+    r_lam = jax.jvp(lambda lam: fn(y, lam), (half,), (jax.numpy.ones(()),))[1]
+    np.testing.assert_allclose(r, fn(y, half), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(J @ b, r_lam, rtol=0, atol=1e-9 * np.max(np.abs(r_lam)))
+    assert sign == np.linalg.slogdet(np.asarray(J))[0]
+    t = np.concatenate([-np.asarray(b), [1.0]])  # the tangent (-b, 1): [J, r_lam] t = 0
+    A = np.concatenate([np.asarray(J), np.asarray(r_lam)[:, None]], axis=1)
+    assert np.max(np.abs(A @ t)) < 1e-9 * np.max(np.abs(A)) * np.max(np.abs(t))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("case,bounds", [("L2", FOLD_L2), ("L3", FOLD_L3)])
 def test_limit_load(case, bounds):
