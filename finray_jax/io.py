@@ -624,6 +624,10 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
         path, v = f"solver.{f.name}", tbl[f.name]
         if isinstance(f.default, bool):
             opts[f.name] = r.boolean(v, path)
+        elif f.name == "max_rotation_step" and v is False:
+            opts[f.name] = None  # no cap: plain Newton steps
+        elif f.name == "max_rotation_step" and v is True:
+            raise r.error(path, "expected an angle in rad, or false for no cap", v)
         elif f.name == "linear_solver":
             opts[f.name] = r.string(v, path, LINEAR_SOLVERS)
         elif isinstance(f.default, int):
@@ -1025,7 +1029,10 @@ def _settings_toml(settings: SolveSettings) -> list[str]:
         out.append(f"backend = {_ts(integ.backend)}")
     for f in _solver_option_fields():
         v = getattr(settings.options, f.name)
-        if v is None:  # an option switched off (max_rotation_step) is not written
+        if v is None and f.name == "max_rotation_step":  # the cap switched off
+            out.append(f"{f.name} = false")
+            continue
+        if v is None:  # an option left to its default rule (reuse_jacobian_below)
             continue
         if isinstance(f.default, bool):
             out.append(f"{f.name} = {'true' if v else 'false'}")

@@ -643,6 +643,25 @@ def test_round_trip_everything():
     assert fio.finger_to_toml(back, back_settings) == text
 
 
+def test_rotation_cap_switched_off_round_trips():
+    """SolverOptions(max_rotation_step=None) (no cap) is written `false` and read back as
+    None; before, it was left out and came back as the default cap, 0.2 rad."""
+    settings = fio.SolveSettings(options=fr.SolverOptions(max_rotation_step=None))
+    text = fio.finger_to_toml(fr.ref_finger_a("L1"), settings)
+    assert "max_rotation_step = false" in text
+    _, back = fio.loads_finger(text)
+    assert back.options.max_rotation_step is None
+    assert back == settings
+    # the default rule of reuse_jacobian_below (None) is not written, and stays None
+    assert "reuse_jacobian_below" not in text and back.options.reuse_jacobian_below is None
+
+
+def test_rotation_cap_true_is_refused():
+    text = fio.finger_to_toml(fr.ref_finger_a("L1")) + "\n[solver]\nmax_rotation_step = true\n"
+    with pytest.raises(fio.FingerFileError, match=r"solver\.max_rotation_step.*false"):
+        fio.loads_finger(text)
+
+
 def test_round_trip_no_crossbeams_no_loads():
     finger = fr.Finger(
         material=fr.Material(12.0, 0.45),
