@@ -542,7 +542,7 @@ class _Corrector(eqx.Module):
     sign: jax.Array  # sign of det J there
 
 
-def _correct(problem, y, lam, arc, options: SolverOptions, active):
+def _correct(problem, y, lam, arc, options: SolverOptions):
     """Newton on the bordered system r(y, lam) = 0, t . (w (y - y_prev), lam - lam_prev) = ds
     from the predictor (y, lam); arc = (y_prev, lam_prev, t, ds, w).
 
@@ -576,7 +576,7 @@ def _correct(problem, y, lam, arc, options: SolverOptions, active):
         y=y,
         lam=lam,
         k=jnp.asarray(0),
-        done=~jnp.asarray(active),
+        done=jnp.asarray(False),
         ok=jnp.asarray(False),
         b=jnp.zeros_like(y),
         sign=jnp.asarray(0.0),
@@ -626,7 +626,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         first = ~s.started
         ds = jnp.where(first, 0.0, s.ds)
         pred = (s.y + ds * s.t[:-1] / s.w, s.lam + ds * s.t[-1])
-        c = _correct(problem, *pred, (s.y, s.lam, s.t, ds, s.w), opts, True)
+        c = _correct(problem, *pred, (s.y, s.lam, s.t, ds, s.w), opts)
         y1, lam1, ok, nit = c.y, c.lam, c.ok, c.k
         w = jnp.where(first, 1.0 / jnp.maximum(jnp.linalg.norm(c.b), 1e-30), s.w)
         t1 = jnp.concatenate([-w * c.b, jnp.ones((1,), c.b.dtype)])
