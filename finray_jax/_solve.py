@@ -708,17 +708,22 @@ def _nograd(tree):
     return jax.tree_util.tree_map(lambda x: lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
-def _direct(quiet: Problem, y_start, options, ref_sign=None):
-    """Newton at full load; accepted when it converges on the branch it started from: the
+def _on_branch(newton: _Newton, ref_sign=None):
+    """Whether a Newton solve at full load converged on the branch it started from: the
     sign of det J at the last iterate is that at the first (no fold crossed), or
     `ref_sign` when given and nonzero (the sign on the branch being followed: a path of
     equilibria compares with its last point, not with the start of Newton, which lies off
     the path and may have either sign)."""
-    direct = _newton_lean(quiet, y_start, jnp.ones(()), options)
-    ref = direct.sign_first
+    ref = newton.sign_first
     if ref_sign is not None:
         ref = jnp.where(ref_sign == 0.0, ref, ref_sign)
-    return direct, direct.ok & (direct.sign == ref)
+    return newton.ok & (newton.sign == ref)
+
+
+def _direct(quiet: Problem, y_start, options, ref_sign=None):
+    """Newton at full load, and whether it is accepted (`_on_branch`)."""
+    direct = _newton_lean(quiet, y_start, jnp.ones(()), options)
+    return direct, _on_branch(direct, ref_sign)
 
 
 def _start(problem, init):
@@ -808,8 +813,7 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
         newton = _newton_lean(
             quiet, jnp.where(cont, guess, y_start), one, options, ~cont | s.reached
         )
-        # Direct: accepted on the branch it started from (the sign of det J kept).
-        direct_ok = newton.ok & (newton.sign == newton.sign_first)
+        direct_ok = _on_branch(newton)
         # After the continuation: the fold, or Newton's root on the traced branch.
         code = _fold_result(s)
         off_branch = s.reached & (~newton.ok | (newton.sign != s.sign))
