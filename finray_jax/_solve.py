@@ -46,7 +46,11 @@ class SolverOptions(eqx.Module):
     direct_first: first try Newton at the full load from the initial guess; fall back to
         arc-length continuation when it fails or lands beyond a fold.
     initial_arc_step, min_arc_step, max_arc_step: pseudo-arc-length step sizes, in the
-        coordinates where the initial tangent has equal load and shape parts.
+        coordinates where the initial tangent has equal load and shape parts. All three
+        shrink by one factor where the first step would otherwise move a scaled unknown
+        by more than FIRST_STEP_CHANGE along the initial tangent (loads so large that the
+        fold lies at a tiny load factor, e.g. a thousand times the limit load): the
+        steps then scale with the load, and the fold is found at any load magnitude.
     max_continuation_steps: bound on continuation steps (vmapped batches run in lock step).
     min_tangent_cosine: a continuation step is retried at half length when the path's
         tangent turns by more than arccos of this (guards against jumping over folds).
@@ -584,6 +588,16 @@ def _correct(problem, y, lam, arc, options: SolverOptions):
     return lax.while_loop(lambda c: ~c.done, body, init)
 
 
+# The largest change of any scaled unknown that the first continuation step may predict
+# (linearly, along the initial tangent). Scaled unknowns measure forces in units of EI/L^2:
+# ref-A's point-load paths reach their fold after about 490 of them (L1 at load factor
+# 36.5, L2 at 1.22), the distributed L3 after about 590, whatever the load's magnitude.
+# So 200 leaves the steps of those cases as they are (their first steps predict 3 to 96)
+# and keeps a first step short of the fold when the load is so large that the fold lies
+# at a tiny load factor.
+FIRST_STEP_CHANGE = 200.0
+
+
 class _Arc(eqx.Module):
     sign: jax.Array  # sign of det(dr/dy) on the branch being traced
     y: jax.Array
@@ -591,6 +605,7 @@ class _Arc(eqx.Module):
     t: jax.Array  # unit tangent in the weighted coordinates (w y, lam)
     w: jax.Array  # weight of the shape part (set by the first tangent)
     ds: jax.Array
+    unit: jax.Array  # factor on the options' arc steps (set by the first tangent, <= 1)
     started: jax.Array  # the tangent at the start is known
     near_fold: jax.Array
     done: jax.Array
@@ -612,8 +627,9 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
     at the new point, from the corrector's last linearisation: in the weighted coordinates
     (w y, lam) it is (-w J^-1 dr/dlam, 1), normalised and oriented along the last one. The
     loop's first pass is a step of length zero at the start, which gives the first tangent
-    and the weight: w makes its shape and load parts equal. (So the loop holds the only
-    Jacobian pass of the continuation: one compiled instance.)
+    and the weight: w makes its shape and load parts equal, and the arc steps' unit (see
+    FIRST_STEP_CHANGE). (So the loop holds the only Jacobian pass of the continuation: one
+    compiled instance.)
     """
     opts = options
     lam0 = jnp.zeros(())
@@ -629,6 +645,10 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         c = _correct(problem, *pred, (s.y, s.lam, s.t, ds, s.w), opts)
         y1, lam1, ok, nit = c.y, c.lam, c.ok, c.k
         w = jnp.where(first, 1.0 / jnp.maximum(jnp.linalg.norm(c.b), 1e-30), s.w)
+        # A step ds along the first tangent (-w b, 1) / sqrt(2) predicts a change of
+        # ds max|b| / sqrt(2) in the scaled unknowns.
+        change = opts.initial_arc_step * jnp.max(jnp.abs(c.b)) / jnp.sqrt(2.0)
+        unit = jnp.where(first, jnp.minimum(1.0, FIRST_STEP_CHANGE / change), s.unit)
         t1 = jnp.concatenate([-w * c.b, jnp.ones((1,), c.b.dtype)])
         t1 = t1 / jnp.linalg.norm(t1)
         t1 = jnp.where(jnp.dot(t1, s.t) < 0.0, -t1, t1)
@@ -646,10 +666,13 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         reached = accept & (lam1 >= target) & ~first
         grow = accept & (nit <= 4) & ~s.near_fold & ~first
         ds_new = jnp.where(
-            accept, jnp.where(grow, jnp.minimum(1.6 * s.ds, opts.max_arc_step), s.ds), 0.5 * s.ds
+            accept,
+            jnp.where(grow, jnp.minimum(1.6 * s.ds, unit * opts.max_arc_step), s.ds),
+            0.5 * s.ds,
         )
+        ds_new = jnp.where(first, unit * s.ds, ds_new)
         near_fold = s.near_fold | folded
-        tiny = ds_new < opts.min_arc_step
+        tiny = ds_new < unit * opts.min_arc_step
         keep = accept & ~reached
         count = jnp.where(first, 0, 1)
         return _Arc(
@@ -659,6 +682,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
             t=jnp.where(keep, t1, s.t),
             w=w,
             ds=ds_new,
+            unit=unit,
             started=s.started | ok,
             near_fold=near_fold,
             done=reached | (~accept & tiny) | (first & ~ok),
@@ -677,6 +701,7 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
         t=e,
         w=jnp.ones(()),
         ds=jnp.asarray(opts.initial_arc_step),
+        unit=jnp.ones(()),
         started=false,
         near_fold=false,
         done=~jnp.asarray(active),

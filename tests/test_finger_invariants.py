@@ -504,6 +504,25 @@ def test_beyond_the_limit_load():
     assert FOLD_L2[0] < 2.5 * lam < FOLD_L2[1]
 
 
+def test_the_fold_is_found_at_any_load_magnitude():
+    """A million times L1 (50 kN) folds at a load factor of about 3.7e-5. The arc steps
+    scale with the load (`FIRST_STEP_CHANGE`), so the solve reports beyond_limit_load (it
+    used to stop at load factor 0 as continuation_failed: even the smallest arc step
+    jumped the fold), and the fold is the same load, to round-off, as for L1 itself."""
+    finger = _ref("L1")
+    huge = finger.scale_loads(1e6)
+    sol = fr.solve_finger(huge, mode="planar")
+    assert sol.status == "beyond_limit_load"
+    fold = 36.54123  # (ref-A L1's fold load factor, refined: 36.541231847...)
+    assert 0.99 * fold < 1e6 * float(sol.load_factor) < fold
+    _assert_balanced(huge, sol, float(sol.load_factor))
+    lam = fr.limit_load(huge, mode="planar")
+    assert bool(lam.found)
+    assert 0.999 * fold < 1e6 * float(lam.load_factor) < fold
+    refined = [float(fr.limit_load_factor(f, mode="planar")) for f in (finger, huge)]
+    np.testing.assert_allclose(1e6 * refined[1], refined[0], rtol=1e-10)
+
+
 @pytest.mark.parametrize("case", ["L2", "L3"])
 def test_bordered_linearisation_gives_the_path_tangent(case):
     """The continuation's corrector and tangent read b = J^-1 dr/dlam from `_bordered`,
