@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from _common import machine, pin_to_one_core, write  # noqa: I001
 
+from finray_jax import _objective
 from finray_jax import optimizer as O
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "optimize_clamp.toml")
@@ -49,14 +50,14 @@ class BlackBox:
         u = np.clip(np.asarray(u, float), 1e-9, 1 - 1e-9)
         z = jnp.asarray(np.log(u) - np.log1p(-u), jnp.float64)
         st, data, anchors = self.s.static, self.s.data, self.s.anchors
-        loss, aux = O._loss_only(z, st, data, anchors)
+        loss, aux = _objective._loss_only(z, st, data, anchors)
         if not (bool(jnp.all(aux["converged"])) and bool(aux["valid"])):
             x = np.asarray(aux["x"])
             fresh = O._reanchor(self.p, self.s, x, anchors, lambda m: None)
             if fresh is None:
                 loss, aux = jnp.inf, None
             else:
-                loss, aux = O._loss_only(z, st, data, fresh)
+                loss, aux = _objective._loss_only(z, st, data, fresh)
         if aux is None or not bool(jnp.all(aux["converged"])):
             obj, feas, loss = float("nan"), False, float("inf")
         else:
@@ -85,7 +86,17 @@ def main():
     problem = O.load_optimize(EXAMPLE)
     results = {"machine": machine(), "pinned_cores": cores, "problem": EXAMPLE}
 
-    # Gradient optimiser (its CSV's wall_time excludes set-up and compile).
+    # Gradient optimiser. A first run of two iterations compiles everything; the measured
+    # run starts afresh in another directory. Its CSV's wall_time counts from the run's
+    # start, so it includes the set-up (the initial grasps); the set-up, timed apart in
+    # this process, is subtracted, as the black boxes below start from a ready set-up.
+    with tempfile.TemporaryDirectory() as out:
+        t = time.perf_counter()
+        O.run_optimize(problem, out, max_iterations=2, plot=False)
+        first = time.perf_counter() - t
+    t = time.perf_counter()
+    O._setup(problem)
+    setup_s = time.perf_counter() - t
     with tempfile.TemporaryDirectory() as out:
         t = time.perf_counter()
         run = O.run_optimize(problem, out, plot=False)
@@ -106,15 +117,18 @@ def main():
         "reason": run.reason,
         # one value-and-gradient per row, plus the trials a halving rejected
         "evaluations_to_target": int(hit + 1 + halvings[: hit + 1].sum()),
-        "wall_s_to_target": float(prog["wall_time"][hit]),
+        "wall_s_to_target": float(prog["wall_time"][hit]) - setup_s,
         "wall_s_per_iteration": float(np.median(np.diff(prog["wall_time"]))),
-        "run_total_s_including_setup_and_compile": total,
+        "setup_s": setup_s,
+        "run_total_s_including_setup": total,
+        "first_two_iterations_s_including_compile": first,
     }
     results["gradient"] = grad
     print(
         f"gradient: best {best:.6g} N (initial {run.initial_objective:.6g}); within 1 % at "
         f"iteration {hit} ({grad['evaluations_to_target']} value+gradient evaluations, "
-        f"{grad['wall_s_to_target']:.1f} s)"
+        f"{grad['wall_s_to_target']:.2f} s, set-up excluded; {grad['wall_s_per_iteration']:.3f} "
+        f"s per iteration; compile and two iterations {first:.1f} s)"
     )
 
     setup = O._setup(problem)
@@ -126,7 +140,7 @@ def main():
     )
     z0 = jnp.asarray(O._z_of(problem.lo, problem.hi, problem.x0), jnp.float64)
     t = time.perf_counter()
-    jax.block_until_ready(O._loss_only(z0, setup.static, setup.data, setup.anchors))
+    jax.block_until_ready(_objective._loss_only(z0, setup.static, setup.data, setup.anchors))
     results["forward_compile_s"] = time.perf_counter() - t
     u0 = (problem.x0 - problem.lo) / (problem.hi - problem.lo)
 

@@ -238,8 +238,9 @@ def unit_direction(direction, name):
 
 def _shape_key(topo):
     """What two segment tables must share to describe the same finger (the cuts may
-    differ: they follow the design values)."""
-    contact = topo.contact and dataclasses.replace(topo.contact, friction=True)
+    differ: they follow the design values, and so may the count of near segments, which
+    follows the supported ones)."""
+    contact = topo.contact and dataclasses.replace(topo.contact, friction=True, near=None)
     return (topo.mode, topo.base_kinds, topo.n_crossbeams, topo.tapered, contact)
 
 

@@ -611,6 +611,28 @@ def test_contact_force_gradient_matches_central_differences(tmp_path):
 
 
 @pytest.mark.slow
+def test_reanchoring_keeps_the_initial_discretisation(tmp_path):
+    """After a failed warm start the optimiser grasps afresh at the trial design. At a
+    support length of 48.2 mm that finger's own cuts give the back beam one segment more
+    (384 unknowns instead of 378), which the compiled loss cannot take: the re-grasp used
+    them and the next evaluation died in a reshape. It is now solved on the initial grasps'
+    segment table."""
+    p = _load(_clamp_text(iterations=1), tmp_path)
+    setup = O._setup(p)
+    x = np.array([17.09, 48.24])
+    moved = fr.design.set_design(p.object_fingers()[0], dict(zip(p.names, x.tolist())))
+    own = fr.topology_of(moved, "planar").band.n
+    assert own != setup.grasps[0].topology.band.n  # (the case is not vacuous)
+    anchors = O._reanchor(p, setup, x, setup.anchors, lambda m: None)
+    assert anchors is not None
+    assert anchors.unknowns.shape == setup.anchors.unknowns.shape
+    z = jnp.asarray(O._z_of(p.lo, p.hi, x), jnp.float64)
+    _, aux = OBJ._loss_only(z, setup.static, setup.data, anchors)
+    assert bool(jnp.all(aux["converged"])) and bool(aux["valid"])
+    np.testing.assert_allclose(aux["x"], x, rtol=1e-12)
+
+
+@pytest.mark.slow
 def test_spacing_limit_is_respected_where_the_unconstrained_optimum_violates_it(tmp_path):
     """Crossbeam 3's back end moves down toward crossbeam 2's (more contact force); a
     minimum clear spacing stops it."""
