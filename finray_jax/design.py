@@ -259,9 +259,11 @@ def design_valid(finger: Finger, topology) -> jax.Array:
     and load points along each beam of the finger the topology was built from).
 
     A traced subset of `validate_finger`: finite values, positive stiffnesses and lengths,
-    attachments inside their beams and in the topology's order, clamps inside their beams,
-    and the geometry rules (`geometry_valid`: main beams apart except at their tip, never
-    crossing; crossbeams long enough).
+    attachments inside their beams and in the topology's order, the adaptor's rules (clamps
+    inside their beams, on clamped bases of straight beams only; the support from the end
+    of the back beam's clamp to at most its length, behind a straight back beam), and the
+    geometry rules (`geometry_valid`: main beams apart except at their tip, never crossing;
+    crossbeams long enough).
     """
     from ._assembly import segment_table  # the solver's own segment lengths
 
@@ -284,8 +286,17 @@ def design_valid(finger: Finger, topology) -> jax.Array:
     ok = ok & jnp.all((cb.front_s > 0) & (cb.front_s < lf) & (cb.back_s > 0) & (cb.back_s < lb))
     ok = ok & jnp.all(jnp.diff(cb.front_s) > 0) & jnp.all(jnp.diff(cb.back_s) > 0)
     ad = finger.adaptor
-    for clamp, length in ((ad.front_clamp_length, lf), (ad.back_clamp_length, lb)):
+    for clamp, length, kind, kappa in (
+        (ad.front_clamp_length, lf, ad.front_base, finger.front_curvature),
+        (ad.back_clamp_length, lb, ad.back_base, finger.back_curvature),
+    ):
         ok = ok & (clamp >= 0) & (clamp < length)
+        ok = ok & ((clamp == 0) | (kappa == 0))  # (no clamp on a curved beam yet)
+        if kind != "clamped":
+            ok = ok & (clamp == 0)
+    if ad.support_length is not None:
+        ls = ad.support_length
+        ok = ok & (ad.back_clamp_length <= ls) & (ls <= lb) & (finger.back_curvature == 0)
     tip = xz(finger.tip)
     for base, kappa in (
         (finger.front_base, finger.front_curvature),

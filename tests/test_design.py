@@ -257,6 +257,59 @@ def test_design_valid_refuses_what_the_geometry_rules_refuse(name):
     assert not bool(VALID(finger, _topology(base)))
 
 
+CURVED_BACK = _with(REF, back_curvature=0.003)
+PINNED_FRONT = _with(REF, adaptor=fr.Adaptor(front_base="pinned"))
+SUPPORTED = _with(
+    REF, adaptor=fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+)
+
+
+def _adaptor(finger, **kw):
+    return _with(finger, adaptor=dataclasses.replace(finger.adaptor, **kw))
+
+
+# (finger, the valid finger whose topology a batch of it would use, validate_finger's words)
+ADAPTOR_REFUSED = {
+    "clamp on a curved back beam": (
+        _adaptor(CURVED_BACK, back_clamp_length=10.0),
+        CURVED_BACK,
+        "a clamp on a curved beam is not supported yet",
+    ),
+    "clamp length on a pinned front base": (
+        _adaptor(PINNED_FRONT, front_clamp_length=5.0),
+        PINNED_FRONT,
+        "needs adaptor.front_base = 'clamped'",
+    ),
+    "support shorter than the clamp": (
+        _adaptor(SUPPORTED, support_length=15.0),
+        SUPPORTED,
+        "adaptor.support_length = 15.0 must lie in [back_clamp_length, back beam length]",
+    ),
+    "support beyond the back beam": (
+        _adaptor(SUPPORTED, support_length=127.0),
+        SUPPORTED,
+        "adaptor.support_length = 127.0 must lie in [back_clamp_length, back beam length]",
+    ),
+    "support behind a curved back beam": (
+        _with(_adaptor(SUPPORTED, back_clamp_length=0.0), back_curvature=0.003),
+        _adaptor(SUPPORTED, back_clamp_length=0.0),
+        "adaptor.support_length needs a straight back beam",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(ADAPTOR_REFUSED))
+def test_design_valid_refuses_what_the_adaptor_rules_refuse(name):
+    """Each finger breaks one of validate_finger's adaptor rules and nothing else: a batch,
+    sweep or optimiser step of it was solved as if valid before design_valid held them."""
+    finger, base, words = ADAPTOR_REFUSED[name]
+    msg = _refusal(finger)
+    assert msg is not None and words in msg, msg
+    assert _refusal(base) is None
+    assert bool(VALID(base, _topology(base)))
+    assert not bool(VALID(finger, _topology(base)))
+
+
 def _example(name):
     return fio.load_finger(EXAMPLES / name)[0]
 
