@@ -24,6 +24,7 @@ from ._finger import loads_are_zero
 from .design import DesignError
 
 EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
+EXIT_INTERRUPTED = 130  # (128 + SIGINT, as a shell reports it)
 STATUS_EXIT = {"converged": EXIT_OK, "beyond_limit_load": EXIT_BEYOND, "failed": EXIT_FAILED}
 
 # The default finger of `finray demo`: identical to examples/finger1.toml (a test checks).
@@ -649,7 +650,7 @@ def _cmd_sweep(args) -> int:
             "to continue",
             file=sys.stderr,
         )
-        return 130
+        return EXIT_INTERRUPTED
     counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))
     print(f"wrote {run.csv} ({run.done} of {run.total} designs: {counts or 'none yet'})")
     if run.figure:
@@ -706,7 +707,7 @@ def _cmd_optimize(args) -> int:
             "to continue",
             file=sys.stderr,
         )
-        return 130
+        return EXIT_INTERRUPTED
     print(f"{run.reason}; {run.rows} iterations in {run.csv}")
     if run.best is None:
         print("no feasible design yet")
@@ -999,6 +1000,9 @@ def _main(argv) -> int:
         where = f": {e.filename}" if getattr(e, "filename", None) else ""
         print(f"finray: error: {e.strerror or e}{where}", file=sys.stderr)
         return EXIT_USER
+    except KeyboardInterrupt:  # (sweep and optimize say what they kept)
+        print("finray: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -243,6 +243,25 @@ def test_solve_bad_file(tmp_path, capsys):
     assert not (tmp_path / "r.json").exists()
 
 
+def test_ctrl_c_is_one_line_and_exit_130(tmp_path, capsys, monkeypatch):
+    """Ctrl-C in any command (here inside the solve) ends it with one line, no traceback."""
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fr, "solve_finger", interrupted)
+    out = tmp_path / "r.json"
+    try:
+        code = cli.main(["solve", str(ROOT / "examples" / "ref_a.toml"), "--out", str(out)])
+    except KeyboardInterrupt:  # (uncaught, it would stop the whole test session)
+        pytest.fail("cli.main let KeyboardInterrupt through")
+    err = capsys.readouterr().err
+    assert code == 130
+    assert err.strip().splitlines()[-1] == "finray: interrupted"
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
 def test_unknown_key_in_file(tmp_path, capsys):
     path = tmp_path / "typo.toml"
     path.write_text((ROOT / "examples" / "ref_a.toml").read_text().replace("nu = ", "nuu = "))
