@@ -246,15 +246,6 @@ REFUSED = {
 }
 
 
-@pytest.mark.parametrize("name", list(REFUSED))
-def test_design_valid_refuses_what_the_geometry_rules_refuse(name):
-    """Each finger breaks one geometry rule and nothing else that design_valid checked
-    before it held them: it was solved as if valid."""
-    finger, base, words = REFUSED[name]
-    msg = _refusal(finger)
-    assert msg is not None and words in msg, msg
-    assert _refusal(base) is None
-    assert not bool(VALID(finger, _topology(base)))
 
 
 CURVED_BACK = _with(REF, back_curvature=0.003)
@@ -298,11 +289,12 @@ ADAPTOR_REFUSED = {
 }
 
 
-@pytest.mark.parametrize("name", list(ADAPTOR_REFUSED))
-def test_design_valid_refuses_what_the_adaptor_rules_refuse(name):
-    """Each finger breaks one of validate_finger's adaptor rules and nothing else: a batch,
-    sweep or optimiser step of it was solved as if valid before design_valid held them."""
-    finger, base, words = ADAPTOR_REFUSED[name]
+@pytest.mark.parametrize("name", list(REFUSED) + list(ADAPTOR_REFUSED))
+def test_design_valid_refuses_what_validate_finger_refuses(name):
+    """Each finger breaks one geometry rule (REFUSED) or adaptor rule (ADAPTOR_REFUSED) and
+    nothing else that design_valid checked before it held them: a batch, sweep or
+    optimiser step of it was solved as if valid."""
+    finger, base, words = {**REFUSED, **ADAPTOR_REFUSED}[name]
     msg = _refusal(finger)
     assert msg is not None and words in msg, msg
     assert _refusal(base) is None
