@@ -246,8 +246,6 @@ REFUSED = {
 }
 
 
-
-
 CURVED_BACK = _with(REF, back_curvature=0.003)
 PINNED_FRONT = _with(REF, adaptor=fr.Adaptor(front_base="pinned"))
 SUPPORTED = _with(
