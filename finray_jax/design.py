@@ -35,6 +35,16 @@ Outputs (`OUTPUTS`, name -> fn(solution, finger) -> scalar; extend with `registe
     load_factor                   1 when converged; the fold factor beyond the limit load
     max_strain                    largest |n3| / EA + |m2| c / EI2 over both main beams
     max_strain.front, max_strain.back
+
+Outputs of a grasp (`GRASP_OUTPUTS`, name -> fn(GraspSolution) -> scalar):
+
+    contact.normal_force          normal contact force on one finger (N)
+    contact.force.x, .z           total contact force on the finger (N)
+    contact.length                arc length in contact (mm)
+    contact.max_penetration       largest penetration into an object (mm)
+    contact.crossbeam_force.x, .z mean crossbeam force on the front beam (N; Fig. 4)
+    actuator_force                force of the actuator along the closing direction (N)
+    closing                       the closing displacement (mm)
 """
 
 from __future__ import annotations
@@ -57,6 +67,7 @@ from ._types import as_float
 __all__ = [
     "DESIGN_VALUES",
     "OUTPUTS",
+    "GRASP_OUTPUTS",
     "DesignError",
     "check_design_names",
     "check_output_names",
@@ -532,6 +543,21 @@ for _beam in ("front", "back"):
         OUTPUTS[f"reaction.{_beam}.m{_c}"] = lambda sol, f, b=_beam, k=_k: getattr(
             sol, f"reactions_{b}"
         ).moment[k]
+
+
+# Outputs of a grasp (`finray_jax.grasp`), name -> fn(GraspSolution) -> scalar: the contact
+# of one finger with its objects. (A grasp's equilibrium also has every output above.)
+GRASP_OUTPUTS: dict[str, Callable] = {
+    "contact.normal_force": lambda g: g.contact.normal_force,
+    "contact.force.x": lambda g: g.contact.force[0],
+    "contact.force.z": lambda g: g.contact.force[2],
+    "contact.length": lambda g: g.contact.contact_length,
+    "contact.max_penetration": lambda g: g.contact.max_penetration,
+    "contact.crossbeam_force.x": lambda g: g.contact.crossbeam_force[0],
+    "contact.crossbeam_force.z": lambda g: g.contact.crossbeam_force[2],
+    "actuator_force": lambda g: g.contact.actuator_force,
+    "closing": lambda g: g.closing,
+}
 
 
 def register_output(name: str, fn: Callable, *, replace: bool = False) -> None:

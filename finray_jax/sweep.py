@@ -24,16 +24,18 @@ from collections.abc import Callable
 import numpy as np
 
 from . import io as fio
-from ._finger import Finger
+from ._finger import Finger, FingerError
+from ._grasp import check_objects, unit_direction
 from ._solution import RESULTS
 from ._solve import resolve_mode
-from .batch import INVALID, Diagnosis, iter_batch, one_line
-from .design import OUTPUTS, DesignError, check_design_names, get_design
+from .batch import INVALID, Diagnosis, iter_batch, iter_grasps, one_line
+from .design import GRASP_OUTPUTS, OUTPUTS, DesignError, check_design_names, get_design
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
 SAMPLINGS = ("grid", "random")
 RESULTS_CSV, MANIFEST, FIGURE = "results.csv", "manifest.json", "sweep.png"
+GRASP_CHUNK = 16  # designs grasped between two writes of results.csv (one after another)
 STATUS_COLUMNS = ("status", "iterations", "max_residual", "reason")
 # Bump when the meaning of a sweep file changes (it keys the sweep's hash). A change of
 # the CSV's layout alone is handled when a sweep continues (see `_resume`: a CSV written
@@ -139,14 +141,27 @@ def _parse(doc, r, source, base_dir) -> Sweep:
     if chunk_size is not None:
         chunk_size = r.integer(chunk_size, "chunk_size", minimum=1)
 
+    grasping = settings.grasp is not None  # every design is closed on the objects
+    if grasping:
+        try:
+            check_objects(finger, unit_direction(settings.grasp.direction, "grasp.direction"))
+        except FingerError as e:
+            raise r.error("finger", f"its [grasp] cannot be solved: {e}", doc["finger"]) from None
+    valid = (*GRASP_OUTPUTS, *OUTPUTS) if grasping else tuple(OUTPUTS)
     outputs = doc["outputs"]
     if not isinstance(outputs, list) or not outputs:
         raise r.error("outputs", "expected a non-empty array of output names", outputs)
     for i, name in enumerate(outputs):
         r.string(name, f"outputs[{i}]")
-        if name not in OUTPUTS:
+        if name in GRASP_OUTPUTS and not grasping:
             raise r.error(
-                f"outputs[{i}]", f"unknown output; valid outputs: {', '.join(OUTPUTS)}", name
+                f"outputs[{i}]",
+                "is an output of a grasp: the finger file needs objects and a [grasp] table",
+                name,
+            )
+        if name not in valid:
+            raise r.error(
+                f"outputs[{i}]", f"unknown output; valid outputs: {', '.join(valid)}", name
             )
         if outputs.index(name) != i:
             raise r.error(f"outputs[{i}]", "listed twice", name)
@@ -475,16 +490,27 @@ def run_sweep(
     done = _resume(sweep, csv_path, designs, diagnose)
     bar = _Progress(sweep.size, done, progress)
     if done < sweep.size:
-        batches = iter_batch(
-            sweep.finger,
-            designs,
-            sweep.outputs,
-            mode=sweep.mode,
-            chunk_size=sweep.chunk_size,
-            integrator=sweep.settings.integrator,
-            options=sweep.settings.options,
-            start=done,
-        )
+        if sweep.settings.grasp is not None:
+            batches = iter_grasps(
+                sweep.finger,
+                designs,
+                sweep.outputs,
+                grasp_kwargs=sweep.settings.grasp.grasp_kwargs(),
+                mode=sweep.mode,
+                chunk_size=sweep.chunk_size or GRASP_CHUNK,
+                start=done,
+            )
+        else:
+            batches = iter_batch(
+                sweep.finger,
+                designs,
+                sweep.outputs,
+                mode=sweep.mode,
+                chunk_size=sweep.chunk_size,
+                integrator=sweep.settings.integrator,
+                options=sweep.settings.options,
+                start=done,
+            )
         with open(csv_path, "a", encoding="utf-8", newline="") as fh:
             for chunks, (first, res) in enumerate(batches, start=1):
                 fh.write(_rows(sweep, first, res, _reasons(res, diagnose)))

@@ -474,3 +474,65 @@ def test_plots(tmp_path, kind):
     data["status"] = np.array(["converged"] * (sw.size - 1) + ["beyond_limit_load"], dtype=object)
     fsweep.plot_sweep(sw, data, str(tmp_path / "f.png"))
     assert (tmp_path / "f.png").stat().st_size > 1000
+
+
+# --------------------------------------------------------------------------------------
+# Grasp sweeps: a finger file with objects and [grasp] closes every design on its objects
+# --------------------------------------------------------------------------------------
+
+GRASP_GRID = """\
+finger = "grasp.toml"
+outputs = ["contact.normal_force", "contact.length", "tip.dx"]
+chunk_size = 2
+
+[sampling]
+kind = "grid"
+
+[[design]]
+name = "adaptor.back_clamp_length"
+range = [10.0, 70.0]
+points = 3
+"""
+
+
+def test_grasp_sweep_rows_are_the_grasps_of_the_designs(tmp_path):
+    """Each row is `finray grasp` of its design (the modified adaptor on the 18 mm
+    cylinder, closing 6 mm), solved on the base finger's segment table; l_c = 70 mm lies
+    past the support's end (60 mm): invalid, with validate_finger's words; a run stopped
+    after its first chunk continues without losing or repeating a row."""
+    import finray_jax as fr
+
+    shutil.copy(ROOT / "examples" / "grasp_finger1_modified.toml", tmp_path / "grasp.toml")
+    path = tmp_path / "grasp_grid.toml"
+    path.write_text(GRASP_GRID)
+    sw = fsweep.load_sweep(path)
+    out = tmp_path / "out"
+    first = fsweep.run_sweep(sw, out, max_chunks=1, plot=False)
+    assert first.done == 2 and not first.finished
+    run = fsweep.run_sweep(sw, out, plot=False)
+    assert run.finished and run.counts == {"converged": 2, "invalid": 1}
+    header, cells = _csv(run.csv)
+    rows = [dict(zip(header, c)) for c in cells]
+    assert [int(r["index"]) for r in rows] == [0, 1, 2]
+    assert "adaptor.support_length = 60.0 must lie in [back_clamp_length" in rows[2]["reason"]
+    base, settings = fio.load_finger(tmp_path / "grasp.toml")
+    topo = fr.topology_of(base, "planar")
+    for row in rows[:2]:
+        lc = float(row["adaptor.back_clamp_length"])
+        finger = fr.set_design(base, {"adaptor.back_clamp_length": lc})
+        g = fr.grasp(finger, **settings.grasp.grasp_kwargs(), topology=topo)
+        assert float(row["contact.normal_force"]) == pytest.approx(
+            float(g.contact.normal_force), rel=1e-12
+        )
+        assert float(row["contact.length"]) == pytest.approx(
+            float(g.contact.contact_length), rel=1e-12
+        )
+        assert float(row["tip.dx"]) == pytest.approx(float(g.solution.tip.displacement[0]))
+    force = [float(r["contact.normal_force"]) for r in rows[:2]]
+    assert 10.0 < force[0] < force[1] < 25.0  # (the demo's 15.9 N at l_c = 20 mm)
+
+
+def test_grasp_outputs_need_a_grasp_file(sweep_file):
+    sweep_file.write_text(GRID.replace('"max_strain"', '"contact.normal_force"'))
+    with pytest.raises(fsweep.SweepError, match=r"outputs\[2\].*needs objects and a \[grasp\]"):
+        fsweep.load_sweep(sweep_file)
