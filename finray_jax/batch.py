@@ -44,6 +44,7 @@ from .design import (
     check_design_names,
     check_output_names,
     design_valid,
+    design_valid_jit,
     evaluate_outputs,
     get_design,
     set_design,
@@ -497,15 +498,12 @@ def solve_batch(
     )
 
 
-_valid = eqx.filter_jit(design_valid)  # (eagerly it costs 13-28 ms a design)
-
-
 def iter_grasps(
     base_finger: Finger,
     values: Mapping[str, np.ndarray],
     outputs: Sequence[str] = ("contact.normal_force",),
     *,
-    grasp_kwargs: Mapping | None = None,
+    grasp_kwargs: Mapping,
     mode: str = "planar",
     chunk_size: int = 16,
     start: int = 0,
@@ -534,7 +532,7 @@ def iter_grasps(
             )
     if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
-    kwargs = dict(grasp_kwargs or {"closing": 0.0})
+    kwargs = dict(grasp_kwargs)
     topo = topology_of(base_finger, mode)
     diagnosis = Diagnosis(base_finger, topo.mode, topo)
     for a in range(start, size, chunk_size):
@@ -545,7 +543,7 @@ def iter_grasps(
         res = np.full(z - a, np.nan)
         for i in range(a, z):
             finger = set_design(base_finger, {k: v[i] for k, v in arrays.items()})
-            if not bool(_valid(finger, topo)):
+            if not bool(design_valid_jit(finger, topo)):
                 continue
             try:
                 g = grasp(finger, mode=mode, topology=topo, **kwargs)

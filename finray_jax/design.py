@@ -71,6 +71,7 @@ __all__ = [
     "DesignError",
     "check_design_names",
     "check_output_names",
+    "design_valid_jit",
     "design_names",
     "design_valid",
     "evaluate_outputs",
@@ -315,6 +316,11 @@ def design_valid(finger: Finger, topology) -> jax.Array:
     ):
         ok = ok & (jnp.abs(kappa) * jnp.linalg.norm(tip - xz(base)) / 2.0 < 0.99)
     return ok & geometry_valid(finger, geo)
+
+
+# design_valid compiled once per topology, for eager callers (a batch's or optimiser's
+# check of one design at a time: eagerly it costs 13-28 ms, compiled 0.12 ms).
+design_valid_jit = eqx.filter_jit(design_valid)
 
 
 # --------------------------------------------------------------------------------------

@@ -59,7 +59,7 @@ from ._grasp import (
 )
 from ._solution import RESULTS
 from ._solve import SolverOptions
-from .design import design_valid
+from .design import design_valid_jit
 from .design import set_design as _set_design
 
 __all__ = [
@@ -312,18 +312,13 @@ def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: _Anchors, say
     )
 
 
-# Compiled once per topology: called eagerly, the check cost about 13-28 ms an iteration,
-# as much as the warm-started value and gradient it guards (0.12 ms compiled).
-_design_valid = eqx.filter_jit(design_valid)
-
-
 def _evaluate(problem, setup: _Setup, z, anchors: _Anchors, say):
     """Loss, aux and gradient at z, warm started from `anchors` (re-anchored by full grasps
     if that fails). Returns (loss, aux, grad, anchors) or None if z cannot be solved or
     leaves the topology."""
     st, data = setup.static, setup.data
     x = _design_of(data, z)
-    if not bool(_design_valid(problem.designed(np.asarray(x)), st.topology)):
+    if not bool(design_valid_jit(problem.designed(np.asarray(x)), st.topology)):
         return None
     for attempt in range(2):
         ok = True
