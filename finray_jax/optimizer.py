@@ -291,7 +291,7 @@ def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: _Anchors, say
         if problem.objective == "holding_force":
             pf = _pull_finger(problem, g.finger)
             e = np.asarray(setup.static.pull)
-            stp = _Stepper(pf, "planar", g.integrator, SolverOptions(), False, g.topology)
+            stp = _Stepper(pf, "planar", g.integrator, SolverOptions(), False, topology=g.topology)
             t, sol, ok = stp.follow(
                 lambda t, pf=pf, e=e: _moved(pf, t * e),
                 0.0,

@@ -16,6 +16,7 @@ import shutil
 import numpy as np
 import pytest
 
+import finray_jax as fr
 from finray_jax import cli
 from finray_jax import io as fio
 from finray_jax import sweep as fsweep
@@ -500,8 +501,6 @@ def test_grasp_sweep_rows_are_the_grasps_of_the_designs(tmp_path):
     cylinder, closing 6 mm), solved on the base finger's segment table; l_c = 70 mm lies
     past the support's end (60 mm): invalid, with validate_finger's words; a run stopped
     after its first chunk continues without losing or repeating a row."""
-    import finray_jax as fr
-
     shutil.copy(ROOT / "examples" / "grasp_finger1_modified.toml", tmp_path / "grasp.toml")
     path = tmp_path / "grasp_grid.toml"
     path.write_text(GRASP_GRID)
