@@ -565,6 +565,7 @@ def release_force(
     mode: str = "planar",
     integrator: Integrator = Integrator(steps=GRASP_STEPS),
     options: SolverOptions = SolverOptions(),
+    topology=None,
 ) -> ReleaseTrace:
     """Pull the grasped object along `pull_direction` (default +z: toward the tips) step by
     step, solving the contact at every step, and report the largest resisting force.
@@ -574,6 +575,8 @@ def release_force(
     the object slides along the pull direction (the slip direction of the friction law).
     The trace starts at pull 0 (the grasp re-solved with the pull's friction law) and
     stops when the contact is lost, or at max_pull (default: the finger's height).
+    topology: as for `grasp` (e.g. the grasp's own `.topology`, so that traces of several
+    designs share one compiled program); None: cut for the grasped finger.
     """
     w = unit_direction(pull_direction, "pull_direction")
     if not (np.isfinite(step) and step > 0):
@@ -586,7 +589,7 @@ def release_force(
         finger = _with_contact(finger, friction=mu)
     if max_pull is None:
         max_pull = float(np.ptp(np.asarray(g.solution.front.position[:, 2]))) + 2 * step
-    stepper = _Stepper(finger, mode, integrator, options, validate=False)
+    stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
 
     def at(t):
         return _moved(finger, t * w)

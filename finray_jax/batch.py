@@ -504,6 +504,7 @@ def iter_grasps(
     outputs: Sequence[str] = ("contact.normal_force",),
     *,
     grasp_kwargs: Mapping,
+    release_kwargs: Mapping | None = None,
     mode: str = "planar",
     chunk_size: int = 16,
     start: int = 0,
@@ -515,21 +516,25 @@ def iter_grasps(
     does (a path of warm-started solves; `grasp_kwargs` as `GraspSettings.grasp_kwargs()`:
     closing or actuator_force, direction, symmetric), on the base finger's segment table
     (`grasp(topology=)`), so every design shares one compiled program. outputs: names of
-    `design.GRASP_OUTPUTS` (the contact) or `design.OUTPUTS` (of the grasp's equilibrium).
+    `design.GRASP_OUTPUTS` (the contact), `design.RELEASE_OUTPUTS` (the holding force:
+    each converged grasp is then also pulled out, `release_force(g, **release_kwargs)`, on
+    the same segment table) or `design.OUTPUTS` (of the grasp's equilibrium).
     A design that is invalid, leaves the base topology or moves its objects out of reach
     is `invalid`; a grasp that does not converge is `failed` with the solver's result.
     """
-    from ._grasp import grasp
-    from .design import GRASP_OUTPUTS
+    from ._grasp import grasp, release_force
+    from .design import GRASP_OUTPUTS, RELEASE_OUTPUTS
 
     arrays, size = _check_values(base_finger, values)
     outputs = tuple(outputs)
     for name in outputs:
-        if name not in GRASP_OUTPUTS and name not in OUTPUTS:
+        if name not in GRASP_OUTPUTS and name not in RELEASE_OUTPUTS and name not in OUTPUTS:
             raise DesignError(
                 f"unknown output {name!r}; valid outputs: {', '.join(GRASP_OUTPUTS)}, "
-                f"{', '.join(OUTPUTS)}"
+                f"{', '.join(RELEASE_OUTPUTS)}, {', '.join(OUTPUTS)}"
             )
+    pulled = any(name in RELEASE_OUTPUTS for name in outputs)
+    release_kwargs = dict(release_kwargs or {})
     if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
     kwargs = dict(grasp_kwargs)
@@ -554,8 +559,13 @@ def iter_grasps(
             its[j] = int(g.solution.iterations)
             res[j] = float(g.solution.max_residual)
             if g.converged:
+                trace = release_force(g, topology=g.topology, **release_kwargs) if pulled else None
                 for name in outputs:
-                    fn = GRASP_OUTPUTS.get(name)
-                    v = fn(g) if fn is not None else OUTPUTS[name](g.solution, g.finger)
+                    if name in RELEASE_OUTPUTS:
+                        v = RELEASE_OUTPUTS[name](trace)
+                    elif name in GRASP_OUTPUTS:
+                        v = GRASP_OUTPUTS[name](g)
+                    else:
+                        v = OUTPUTS[name](g.solution, g.finger)
                     outs[name][j] = float(v)
         yield a, _chunk_result(arrays, slice(a, z), outs, code, its, res, diagnosis)

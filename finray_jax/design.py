@@ -45,6 +45,15 @@ Outputs of a grasp (`GRASP_OUTPUTS`, name -> fn(GraspSolution) -> scalar):
     contact.crossbeam_force.x, .z mean crossbeam force on the front beam (N; Fig. 4)
     actuator_force                force of the actuator along the closing direction (N)
     closing                       the closing displacement (mm)
+
+Outputs of the grasp's release trace (`RELEASE_OUTPUTS`, name -> fn(ReleaseTrace) -> scalar;
+`finray_jax.release_force`):
+
+    release.peak                  holding force: the largest pull the grasp resists (N, all
+                                  fingers)
+    release.peak_pull             the pull distance at that peak (mm)
+    release.complete              1 when the trace reached the loss of contact, else 0 (it
+                                  stopped early: its peak is the largest force up to there)
 """
 
 from __future__ import annotations
@@ -68,6 +77,7 @@ __all__ = [
     "DESIGN_VALUES",
     "OUTPUTS",
     "GRASP_OUTPUTS",
+    "RELEASE_OUTPUTS",
     "DesignError",
     "check_design_names",
     "check_output_names",
@@ -563,6 +573,13 @@ GRASP_OUTPUTS: dict[str, Callable] = {
     "contact.crossbeam_force.z": lambda g: g.contact.crossbeam_force[2],
     "actuator_force": lambda g: g.contact.actuator_force,
     "closing": lambda g: g.closing,
+}
+
+# Outputs of a grasp's release trace (`finray_jax.release_force`), name -> fn(ReleaseTrace).
+RELEASE_OUTPUTS: dict[str, Callable] = {
+    "release.peak": lambda tr: tr.peak,
+    "release.peak_pull": lambda tr: tr.peak_pull,
+    "release.complete": lambda tr: float(tr.complete),
 }
 
 

@@ -29,7 +29,14 @@ from ._grasp import check_objects, unit_direction
 from ._solution import RESULTS
 from ._solve import resolve_mode
 from .batch import INVALID, Diagnosis, iter_batch, iter_grasps, one_line
-from .design import GRASP_OUTPUTS, OUTPUTS, DesignError, check_design_names, get_design
+from .design import (
+    GRASP_OUTPUTS,
+    OUTPUTS,
+    RELEASE_OUTPUTS,
+    DesignError,
+    check_design_names,
+    get_design,
+)
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
@@ -147,13 +154,14 @@ def _parse(doc, r, source, base_dir) -> Sweep:
             check_objects(finger, unit_direction(settings.grasp.direction, "grasp.direction"))
         except FingerError as e:
             raise r.error("finger", f"its [grasp] cannot be solved: {e}", doc["finger"]) from None
-    valid = (*GRASP_OUTPUTS, *OUTPUTS) if grasping else tuple(OUTPUTS)
+    of_grasp = (*GRASP_OUTPUTS, *RELEASE_OUTPUTS)
+    valid = (*of_grasp, *OUTPUTS) if grasping else tuple(OUTPUTS)
     outputs = doc["outputs"]
     if not isinstance(outputs, list) or not outputs:
         raise r.error("outputs", "expected a non-empty array of output names", outputs)
     for i, name in enumerate(outputs):
         r.string(name, f"outputs[{i}]")
-        if name in GRASP_OUTPUTS and not grasping:
+        if name in of_grasp and not grasping:
             raise r.error(
                 f"outputs[{i}]",
                 "is an output of a grasp: the finger file needs objects and a [grasp] table",
@@ -496,6 +504,7 @@ def run_sweep(
                 designs,
                 sweep.outputs,
                 grasp_kwargs=sweep.settings.grasp.grasp_kwargs(),
+                release_kwargs={"step": sweep.settings.grasp.pull_step},
                 mode=sweep.mode,
                 chunk_size=sweep.chunk_size or GRASP_CHUNK,
                 start=done,

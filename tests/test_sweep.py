@@ -531,7 +531,57 @@ def test_grasp_sweep_rows_are_the_grasps_of_the_designs(tmp_path):
     assert 10.0 < force[0] < force[1] < 25.0  # (the demo's 15.9 N at l_c = 20 mm)
 
 
-def test_grasp_outputs_need_a_grasp_file(sweep_file):
-    sweep_file.write_text(GRID.replace('"max_strain"', '"contact.normal_force"'))
+RELEASE_GRID = """\
+finger = "grasp.toml"
+outputs = ["contact.normal_force", "release.peak", "release.peak_pull", "release.complete"]
+
+[sampling]
+kind = "grid"
+
+[[design]]
+name = "adaptor.support_length"
+range = [50.0, 62.0]
+points = 2
+"""
+
+
+def test_grasp_sweep_records_the_holding_force_of_each_design(tmp_path):
+    """A sweep with release outputs pulls every grasped design out as `release_force` does
+    (the [grasp] table's pull_step, the [contact] friction), on the grasp's segment table:
+    the row is that trace's peak. Here a 50 mm cylinder with mu = 0.5 on the modified
+    adaptor; the longer support presses harder, and holds harder."""
+    text = (ROOT / "examples" / "grasp_finger1_modified.toml").read_text()
+    for old, new in (
+        ("center = [-11.0, 60.0]", "center = [-27.0, 60.0]"),  # 0.5 mm clear, as the 18 mm
+        ("radius = 9.0", "radius = 25.0"),
+        ("[contact]\n", "[contact]\nfriction = 0.5\n"),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    (tmp_path / "grasp.toml").write_text(text)
+    path = tmp_path / "release_grid.toml"
+    path.write_text(RELEASE_GRID)
+    run = fsweep.run_sweep(fsweep.load_sweep(path), tmp_path / "out", plot=False)
+    assert run.finished and run.counts == {"converged": 2}
+    header, cells = _csv(run.csv)
+    rows = [dict(zip(header, c)) for c in cells]
+    base, settings = fio.load_finger(tmp_path / "grasp.toml")
+    finger = fr.set_design(base, {"adaptor.support_length": 50.0})
+    g = fr.grasp(finger, **settings.grasp.grasp_kwargs(), topology=fr.topology_of(base, "planar"))
+    tr = fr.release_force(g, step=settings.grasp.pull_step, topology=g.topology)
+    assert tr.complete and tr.peak > 0.0
+    assert float(rows[0]["release.peak"]) == pytest.approx(tr.peak, rel=1e-12)
+    assert float(rows[0]["release.peak_pull"]) == pytest.approx(tr.peak_pull, abs=1e-12)
+    assert [r["release.complete"] for r in rows] == ["1.0", "1.0"]
+    normal = [float(r["contact.normal_force"]) for r in rows]
+    held = [float(r["release.peak"]) for r in rows]
+    assert normal[0] < normal[1] and held[0] < held[1]
+    # mu = 0.5: two fingers hold at most 2 mu N (the friction cone), and friction does hold
+    assert all(0.1 * n < h <= 2 * 0.5 * n * (1 + 1e-9) for n, h in zip(normal, held))
+
+
+@pytest.mark.parametrize("output", ["contact.normal_force", "release.peak"])
+def test_grasp_outputs_need_a_grasp_file(sweep_file, output):
+    sweep_file.write_text(GRID.replace('"max_strain"', f'"{output}"'))
     with pytest.raises(fsweep.SweepError, match=r"outputs\[2\].*needs objects and a \[grasp\]"):
         fsweep.load_sweep(sweep_file)
