@@ -521,19 +521,43 @@ def _live_param_columns(problem: Problem, d_problem, d_lam) -> np.ndarray:
 def _bordered(problem, lam, y, linear_solver):
     """The residual r at (y, lam), the factors of J = dr/dy there, b = J^-1 dr/dlam and the
     sign of det J: what a Newton step on the continuation's bordered system and the path's
-    tangent need. (One Jacobian pass, as Newton's own, and one tangent in lam.)"""
-    r, factors, sign = _linearise(problem, lam, y, linear_solver)
-    Y = y.reshape(problem.table.length.shape[0], -1)
-    starts = problem.start_states(Y)
+    tangent need.
 
-    def residual(lam):
-        # Plain forward mode through the integrator, one tangent: the segment flow's own
-        # JVP rule would integrate a direction for every parameter column (compiles 2x
-        # longer).
-        return problem.residual_from_states(starts, problem.integrated(Y, lam)[:, -1], lam)
+    In 3-D one forward pass integrates every segment with the derivatives of its end state
+    in the start state's 9 directions and in the load factor (`flow_jacobians` along the
+    load direction of the parameters): J from the colour seeds as in `_linearise`, dr/dlam
+    from the lam direction. With a pass of its own for dr/dlam (forward mode through the
+    integrator, one tangent) the 3-D full core compiled in 19.8 s instead of 16.2 s, and
+    the continuation ran 2-8 % faster (ref-A limit loads, paired). Planar (4 + 1
+    directions) the one pass compiled no faster and ran 11 % slower, so there dr/dlam
+    keeps its own pass."""
+    S = problem.table.length.shape[0]
+    if linear_solver != "banded" or problem.topo.mode == "planar":
+        r, factors, sign = _linearise(problem, lam, y, linear_solver)
+        Y = y.reshape(S, -1)
+        starts = problem.start_states(Y)
 
-    r_lam = jax.jvp(residual, (lam,), (jnp.ones_like(lam),))[1]
-    return r, factors, _apply_inverse(problem, factors, r_lam, linear_solver), sign
+        def residual(lam):
+            return problem.residual_from_states(starts, problem.integrated(Y, lam)[:, -1], lam)
+
+        r_lam = jax.jvp(residual, (lam,), (jnp.ones_like(lam),))[1]
+        return r, factors, _apply_inverse(problem, factors, r_lam, linear_solver), sign
+    md, plan = problem.model, problem.topo.band
+    starts, setup_jvp = jax.linearize(lambda a: problem.start_states(a.reshape(S, -1)), y)
+    Q, dQ = jax.jvp(problem.params, (lam,), (jnp.ones_like(lam),))
+    ends, jac_y, jac_lam = flow_jacobians(md, problem.integrator, starts, Q, q_direction=dQ)
+    r, residual_jvp = jax.linearize(problem.residual_from_states, starts, ends, lam)
+    no_lam = jnp.zeros_like(lam)
+
+    def r_dot(da):
+        d_starts = setup_jvp(da)
+        d_ends = apply_flow_jacobians(md, starts, d_starts, None, jac_y, None)
+        return residual_jvp(d_starts, d_ends, no_lam)
+
+    JS = jax.vmap(r_dot, in_axes=1, out_axes=1)(jnp.asarray(plan.colors, y.dtype))
+    r_lam = residual_jvp(jnp.zeros_like(starts), jac_lam[..., 0], jnp.ones_like(lam))
+    fac = _banded.factor(plan, _banded.band(plan, JS))
+    return r, fac, _banded.solve_factored(plan, fac, r_lam), fac.sign
 
 
 class _Corrector(eqx.Module):
