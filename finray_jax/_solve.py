@@ -656,8 +656,6 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
     compiled instance.)
     """
     opts = options
-    lam0 = jnp.zeros(())
-    e = jnp.zeros(y0.shape[0] + 1).at[-1].set(1.0)
 
     def cond(s: _Arc):
         return ~s.done & (s.steps < opts.max_continuation_steps)
@@ -717,25 +715,29 @@ def _continuation(problem: Problem, y0, target, options: SolverOptions, active=T
             iterations=s.iterations + count * nit,
         )
 
-    false = jnp.asarray(False)
-    init = _Arc(
-        sign=jnp.asarray(0.0),
+    return lax.while_loop(cond, body, _arc_start(y0, opts, active))
+
+
+def _arc_start(y0, options: SolverOptions, active=True) -> _Arc:
+    """The continuation's state before its first step (done when not `active`)."""
+    false, zero = jnp.asarray(False), jnp.zeros(())
+    return _Arc(
+        sign=zero,
         y=y0,
-        lam=lam0,
-        t=e,
+        lam=zero,
+        t=jnp.zeros(y0.shape[0] + 1).at[-1].set(1.0),
         w=jnp.ones(()),
-        ds=jnp.asarray(opts.initial_arc_step),
+        ds=jnp.asarray(options.initial_arc_step),
         unit=jnp.ones(()),
         started=false,
         near_fold=false,
         done=~jnp.asarray(active),
         reached=false,
         y_over=y0,
-        lam_over=lam0,
+        lam_over=zero,
         steps=jnp.asarray(0),
         iterations=jnp.asarray(0),
     )
-    return lax.while_loop(cond, body, init)
 
 
 def _fold_result(s: _Arc):
@@ -856,7 +858,13 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
 
     def body(st: _Round):
         cont = st.stage == 1
-        s = _continuation(quiet, y_und, one, options, cont)
+        # (a cond, so that a solve without continuation does not pay for the loop's set-up;
+        # vmapped, it runs the loop, inactive for the designs that need none, as before)
+        s = lax.cond(
+            cont,
+            lambda: _continuation(quiet, y_und, one, options, cont),
+            lambda: _arc_start(y_und, options, False),
+        )
         frac = (1.0 - s.lam) / jnp.maximum(s.lam_over - s.lam, 1e-300)
         guess = jnp.where(s.reached, s.y + frac * (s.y_over - s.y), s.y)
         newton = _newton_lean(
