@@ -523,15 +523,19 @@ def test_the_fold_is_found_at_any_load_magnitude():
     np.testing.assert_allclose(1e6 * refined[1], refined[0], rtol=1e-10)
 
 
-@pytest.mark.parametrize("case", ["L2", "L3"])
-def test_bordered_linearisation_gives_the_path_tangent(case):
+@pytest.mark.parametrize(
+    "case,mode",
+    [("L2", "planar"), ("L3", "planar"), pytest.param("L3", "spatial", marks=pytest.mark.slow)],
+)
+def test_bordered_linearisation_gives_the_path_tangent(case, mode):
     """The continuation's corrector and tangent read b = J^-1 dr/dlam from `_bordered`,
-    whose dr/dlam is one plain forward-mode tangent through the integrator. Checked
-    against a dense Jacobian and the segment flow's own JVP rule at a deformed state with
-    the loads half on (L3: a distributed load, where r is nonlinear in lam), and the
-    tangent built from it against the null vector of [J, dr/dlam]."""
+    whose dr/dlam is one plain forward-mode tangent through the integrator (planar) or one
+    more direction of its Jacobian pass (3-D). Checked against a dense Jacobian and the
+    segment flow's own JVP rule at a deformed state with the loads half on (L3: a
+    distributed load, where r is nonlinear in lam), and the tangent built from it against
+    the null vector of [J, dr/dlam]."""
     finger = _ref(case)
-    topo = fr.topology_of(finger, "planar")
+    topo = fr.topology_of(finger, mode)
     problem = _solve._nograd(_solve._make_problem(topo, fr.Integrator(), finger))
     half = jax.numpy.asarray(0.5)
     y = _solve.undeformed_unknowns(topo, finger)
