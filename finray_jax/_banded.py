@@ -145,11 +145,17 @@ def _sizes(plan: BandPlan):
     return nb, steps, h, w, steps * nb + plan.kl + plan.ku
 
 
+def seeded(plan: BandPlan, jvp, dtype):
+    """J S (n, n_colors): a linear map `jvp` (J times a vector) applied to the colour
+    seeds, batched."""
+    return jax.vmap(jvp, in_axes=1, out_axes=1)(jnp.asarray(plan.colors, dtype))
+
+
 def compressed(plan: BandPlan, fn, y):
     """fn(y) and J S (n, n_colors): the Jacobian times the colour seeds, one forward pass
     with `n_colors` tangents."""
     r, jvp = jax.linearize(fn, y)
-    return r, jax.vmap(jvp, in_axes=1, out_axes=1)(jnp.asarray(plan.colors, y.dtype))
+    return r, seeded(plan, jvp, y.dtype)
 
 
 def linearize(plan: BandPlan, fn, y):

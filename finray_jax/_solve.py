@@ -484,8 +484,7 @@ def _implicit_root_jvp(primals, tangents):
         return residual_jvp(d_starts, flow_dot(d_starts, dQ, -1), dd)
 
     plan = problem.topo.band
-    seeds = jnp.asarray(plan.colors, y.dtype)
-    JS = jax.vmap(lambda c: r_dot(c, zero_dyn), in_axes=1, out_axes=1)(seeds)
+    JS = _banded.seeded(plan, lambda c: r_dot(c, zero_dyn), y.dtype)
     fac = lax.stop_gradient(_banded.factor(plan, _banded.band(plan, JS)))
     dy = -_banded.solve_factored(plan, fac, r_dot(jnp.zeros_like(y), d_dyn))
     d_starts, dQ = setup_jvp(dy, d_dyn)
@@ -554,7 +553,7 @@ def _bordered(problem, lam, y, linear_solver):
         d_ends = apply_flow_jacobians(md, starts, d_starts, None, jac_y, None)
         return residual_jvp(d_starts, d_ends, no_lam)
 
-    JS = jax.vmap(r_dot, in_axes=1, out_axes=1)(jnp.asarray(plan.colors, y.dtype))
+    JS = _banded.seeded(plan, r_dot, y.dtype)
     r_lam = residual_jvp(jnp.zeros_like(starts), jac_lam[..., 0], jnp.ones_like(lam))
     fac = _banded.factor(plan, _banded.band(plan, JS))
     return r, fac, _banded.solve_factored(plan, fac, r_lam), fac.sign
