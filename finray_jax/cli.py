@@ -22,6 +22,7 @@ import finray_jax as fr
 from . import io as fio
 from ._finger import loads_are_zero
 from .design import DesignError
+from .studies import StudyRecordError
 
 EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130  # (128 + SIGINT, as a shell reports it)
@@ -286,7 +287,8 @@ def _parser() -> argparse.ArgumentParser:
         "clamp-study",
         help="best back-beam clamp length against object size (the paper's Fig. 5)",
         description="Contact force of the modified adaptor against the back beam's clamp "
-        "length for cylinders of increasing size. Writes DIR/clamp_study.png and .json.",
+        "length for cylinders of increasing size. Writes DIR/clamp_study.png and .json; the "
+        "JSON keeps every finished grasp, so an interrupted study, run again, continues.",
     )
     cs.add_argument("--out", metavar="DIR", default=".")
     cs.add_argument("--closing", type=_positive_float, default=6.0, metavar="MM")
@@ -920,7 +922,15 @@ def _cmd_clamp_study(args) -> int:
     from .studies import clamp_study
 
     finger = _study_finger(args.finger)
-    st = clamp_study(finger, closing=args.closing, progress=_progress)
+    js = os.path.join(args.out, "clamp_study.json")
+    try:
+        st = clamp_study(finger, closing=args.closing, progress=_progress, record=js)
+    except KeyboardInterrupt:
+        print(
+            f"finray: interrupted; finished grasps are in {js}: run the same command to continue",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     head = ["object (mm)"] + [f"l_c={x:g}" for x in st.clamp_lengths] + ["best l_c"]
     rows = [
         [f"{d:g}"] + [_f(x) for x in row] + [f"{b:g}"]
@@ -931,20 +941,8 @@ def _cmd_clamp_study(args) -> int:
         f"{st.support_length:g} mm, closing {args.closing:g} mm"
     )
     print("\n".join(_table(head, rows)))
-    os.makedirs(args.out, exist_ok=True)
     png = os.path.join(args.out, "clamp_study.png")
     save_figure(clamp_study_figure(st), png)
-    js = os.path.join(args.out, "clamp_study.json")
-    fio.write_json(
-        js,
-        {
-            "diameters": st.diameters.tolist(),
-            "clamp_lengths": st.clamp_lengths.tolist(),
-            "support_length": st.support_length,
-            "normal_force": st.normal_force.tolist(),
-            "best_clamp_length": st.best.tolist(),
-        },
-    )
     print(f"wrote {png}\nwrote {js}")
     return EXIT_OK
 
@@ -993,14 +991,14 @@ def _main(argv) -> int:
             enable_compilation_cache()
             choose_device(args.command)
         return COMMANDS[args.command](args)
-    except (UserError, fio.FingerFileError, fr.FingerError, DesignError) as e:
+    except (UserError, fio.FingerFileError, fr.FingerError, DesignError, StudyRecordError) as e:
         print(f"finray: error: {e}", file=sys.stderr)
         return EXIT_USER
     except OSError as e:  # e.g. an output path that cannot be written
         where = f": {e.filename}" if getattr(e, "filename", None) else ""
         print(f"finray: error: {e.strerror or e}{where}", file=sys.stderr)
         return EXIT_USER
-    except KeyboardInterrupt:  # (sweep and optimize say what they kept)
+    except KeyboardInterrupt:  # (sweep, optimize and clamp-study say what they kept)
         print("finray: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
 

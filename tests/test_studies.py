@@ -1,0 +1,83 @@
+"""The paper studies on the public API: an interrupted clamp study resumes from its record."""
+
+import json
+
+import equinox as eqx
+import numpy as np
+import pytest
+from test_cli import run
+
+from finray_jax import cli, studies
+from finray_jax import io as fio
+
+# Two grasps of Finger-1 (the demo finger): a small study, so the test stays quick.
+SETTINGS = dict(diameters=(18.0,), clamp_lengths=(10.0, 30.0))
+
+
+class _Stop(Exception):
+    pass
+
+
+def _finger():
+    finger, _ = fio.loads_finger(cli.DEMO_FINGER_TOML, source=cli.DEMO_SOURCE)
+    return finger
+
+
+def _grasps(messages):
+    return [m for m in messages if "l_c =" in m]
+
+
+def test_an_interrupted_clamp_study_resumes_without_solving_a_grasp_twice(tmp_path):
+    finger = _finger()
+    clean = studies.clamp_study(finger, **SETTINGS)
+    assert np.all(np.isfinite(clean.normal_force))
+
+    record = tmp_path / "clamp_study.json"
+    said = []
+
+    def stop_at_second(msg):
+        said.append(msg)
+        if len(_grasps(said)) == 2:
+            raise _Stop  # interrupted as the second grasp starts
+
+    with pytest.raises(_Stop):
+        studies.clamp_study(finger, **SETTINGS, progress=stop_at_second, record=record)
+    kept = json.loads(record.read_text())
+    assert kept["complete"] is False and kept["solved"] == [[True, False]]
+    assert kept["normal_force"][0][0] == pytest.approx(clean.normal_force[0, 0], rel=1e-12)
+    assert kept["normal_force"][0][1] is None and "best_clamp_length" not in kept
+
+    said = []
+    resumed = studies.clamp_study(finger, **SETTINGS, progress=said.append, record=record)
+    assert said[0] == f"continuing {record}: 1 of 2 grasps done"
+    assert _grasps(said) == ["18 mm object, l_c = 30 mm"]  # only the one not finished
+    np.testing.assert_allclose(resumed.normal_force, clean.normal_force, rtol=1e-12)
+    done = json.loads(record.read_text())
+    assert done["complete"] is True and done["best_clamp_length"] == clean.best.tolist()
+
+    # Complete: nothing is solved again. Other settings: the record is replaced.
+    said = []
+    again = studies.clamp_study(finger, **SETTINGS, progress=said.append, record=record)
+    assert _grasps(said) == [] and np.array_equal(again.normal_force, resumed.normal_force)
+    said = []
+    with pytest.raises(_Stop):
+        studies.clamp_study(finger, **SETTINGS, closing=5.0, progress=stop_at_second, record=record)
+    assert said[0] == f"{record} holds another study (finger or settings differ): starting afresh"
+    assert len(_grasps(said)) == 2  # both grasps of the new study were started
+
+
+def test_a_clamp_study_record_that_is_not_one_is_refused_by_name(tmp_path):
+    record = tmp_path / "clamp_study.json"
+    record.write_text("not json")
+    with pytest.raises(studies.StudyRecordError, match="clamp_study.json: not a clamp-study"):
+        studies.clamp_study(_finger(), **SETTINGS, record=record)
+    code, _, err = run(["clamp-study", "--out", str(tmp_path)])
+    assert code == 1 and "not a clamp-study record" in err and "Traceback" not in err
+    assert record.read_text() == "not json"  # left as it was
+
+
+def test_finger_digest_follows_every_value():
+    finger = _finger()
+    thicker = eqx.tree_at(lambda f: f.back.thickness, finger, finger.back.thickness * 1.001)
+    assert studies.finger_digest(finger) == studies.finger_digest(_finger())
+    assert studies.finger_digest(thicker) != studies.finger_digest(finger)
