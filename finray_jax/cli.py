@@ -273,8 +273,9 @@ def _parser() -> argparse.ArgumentParser:
         help="original vs modified adaptor (the paper's Fig. 4 and Table 2 settings)",
         description="Grasp an 18 mm cylinder with Finger-1 on the original and the modified "
         "adaptor at the same closing displacement, and trace the release force of 35, 50 and "
-        "65 mm cylinders; print our figures beside the paper's. Writes DIR/compare.png and "
-        "DIR/compare.json.",
+        "65 mm cylinders; print our figures beside the paper's. Writes DIR/compare.png, "
+        "DIR/compare.json and DIR/compare_record.json, which keeps every finished release "
+        "trace, so an interrupted comparison, run again, continues.",
     )
     cmp_.add_argument("--out", metavar="DIR", default=".")
     cmp_.add_argument("--closing", type=_positive_float, default=6.0, metavar="MM")
@@ -885,7 +886,18 @@ def _cmd_compare(args) -> int:
 
     finger = _study_finger(args.finger)
     t0 = time.perf_counter()
-    cmp = compare_adaptors(finger, closing=args.closing, friction=args.friction, progress=_progress)
+    kept = os.path.join(args.out, "compare_record.json")
+    try:
+        cmp = compare_adaptors(
+            finger, closing=args.closing, friction=args.friction, progress=_progress, record=kept
+        )
+    except KeyboardInterrupt:
+        print(
+            f"finray: interrupted; finished release traces are in {kept}: run the same "
+            "command to continue",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     print("\n".join(_comparison_lines(cmp)))
     print(
         f"({time.perf_counter() - t0:.1f} s; frictionless release unless --friction; see "
@@ -912,7 +924,7 @@ def _cmd_compare(args) -> int:
             },
         },
     )
-    print(f"wrote {png}\nwrote {js}")
+    print(f"wrote {png}\nwrote {js}\nwrote {kept}")
     ok = cmp.original.converged and cmp.modified.converged
     return EXIT_OK if ok else EXIT_FAILED
 
@@ -998,7 +1010,7 @@ def _main(argv) -> int:
         where = f": {e.filename}" if getattr(e, "filename", None) else ""
         print(f"finray: error: {e.strerror or e}{where}", file=sys.stderr)
         return EXIT_USER
-    except KeyboardInterrupt:  # (sweep, optimize and clamp-study say what they kept)
+    except KeyboardInterrupt:  # (sweep, optimize, compare and clamp-study say what they kept)
         print("finray: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
 

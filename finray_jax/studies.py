@@ -16,7 +16,7 @@ import numpy as np
 
 from . import io as fio
 from ._finger import Adaptor, Finger
-from ._grasp import GraspSolution, grasp, release_force
+from ._grasp import GraspSolution, ReleaseTrace, grasp, release_force
 from ._objects import Circle
 
 # The paper's figures (quoted for comparison only).
@@ -69,10 +69,44 @@ def compare_adaptors(
     pull_step: float = 2.0,
     friction: float = 0.0,
     progress=None,
+    record=None,
 ) -> Comparison:
     """Original vs modified adaptor: the grasp of a `diameter` cylinder at the same closing
-    displacement, and the release (holding) force of larger cylinders."""
+    displacement, and the release (holding) force of larger cylinders.
+
+    record: a JSON file (the CLI's DIR/compare_record.json) rewritten, atomically, after
+    every release trace (the long part) with the traces finished so far and the study's
+    hash (finger and settings). A run that finds the record of the same study takes its
+    traces from it, so an interrupted comparison loses no finished trace (the two grasps
+    of the `diameter` cylinder, a few seconds, are solved again); the record of another
+    study is replaced."""
     say = progress or (lambda msg: None)
+    settings = {
+        "closing": float(closing),
+        "diameter": float(diameter),
+        "release_diameters": [float(d) for d in release_diameters],
+        "modified": finger_digest(modified),
+        "pull_step": float(pull_step),
+        "friction": float(friction),
+    }
+    digest = _study_hash("compare", finger, settings)
+    done = {}  # (diameter, adaptor name) -> ReleaseTrace
+    if record is not None:
+        record = os.fspath(record)
+        kept = _read_record(record, digest, "compare", say)
+        for key, t in (kept or {}).get("release", {}).items():
+            d, name = key.split(" ")
+            done[float(d), name] = _trace_from_record(t)
+        if kept is not None:
+            n = 2 * len(settings["release_diameters"])
+            say(f"continuing {record}: {len(done)} of {n} release traces done")
+
+    def keep():
+        n = 2 * len(settings["release_diameters"])
+        rec = {"study_hash": digest, "complete": len(done) == n, **settings}
+        rec["release"] = {f"{d:g} {name}": _trace_record(t) for (d, name), t in done.items()}
+        _write_record(record, rec)
+
     base = with_object(finger, diameter)
     say(f"grasp, {diameter:g} mm object, original adaptor")
     g0 = grasp(with_adaptor(base, ORIGINAL), closing)
@@ -80,13 +114,37 @@ def compare_adaptors(
     g1 = grasp(with_adaptor(base, modified), closing)
     release = {}
     for d in release_diameters:
-        traces = []
         for name, ad in (("original", ORIGINAL), ("modified", modified)):
+            if (float(d), name) in done:
+                continue
             say(f"release force, {d:g} mm object, {name} adaptor")
             g = grasp(with_adaptor(with_object(finger, d), ad), closing)
-            traces.append(release_force(g, step=pull_step, friction=friction))
-        release[d] = tuple(traces)
+            done[float(d), name] = release_force(g, step=pull_step, friction=friction)
+            if record is not None:
+                keep()
+        release[d] = (done[float(d), "original"], done[float(d), "modified"])
+    if record is not None and not os.path.exists(record):
+        keep()  # (no trace to run)
     return Comparison(closing, g0, g1, release)
+
+
+def _trace_record(t: ReleaseTrace) -> dict:
+    names = ("pull", "force", "normal_force", "peak", "peak_pull", "complete", "message")
+    return {k: getattr(t, k) for k in names}
+
+
+def _trace_from_record(t: dict) -> ReleaseTrace:
+    num = lambda x: np.nan if x is None else float(x)  # (JSON keeps NaN as null)
+    arr = lambda x: np.asarray([np.nan if v is None else v for v in x], dtype=float)
+    return ReleaseTrace(
+        pull=arr(t["pull"]),
+        force=arr(t["force"]),
+        normal_force=arr(t["normal_force"]),
+        peak=num(t["peak"]),
+        peak_pull=num(t["peak_pull"]),
+        complete=bool(t["complete"]),
+        message=str(t["message"]),
+    )
 
 
 @dataclasses.dataclass
@@ -107,13 +165,13 @@ class StudyRecordError(ValueError):
     """A study's record file that cannot be read as one (the CLI reports it, no traceback)."""
 
 
-# Bump when a record's cells would mean something else (it keys the record's hash).
-_CLAMP_RECORD_VERSION = 1
+# Bump when a record would mean something else (it keys the records' hashes).
+_RECORD_VERSION = 1
 
 
 def finger_digest(finger: Finger) -> str:
     """A hash of everything a finger holds (structure, settings and values), the same in
-    every process: two fingers with the same digest solve alike."""
+    every process: two fingers with the same digest solve alike. (Any pytree will do.)"""
     leaves, treedef = jax.tree_util.tree_flatten(finger)
     h = hashlib.sha256(str(treedef).encode())
     for leaf in leaves:
@@ -122,22 +180,37 @@ def finger_digest(finger: Finger) -> str:
     return h.hexdigest()
 
 
-def _read_clamp_record(path, digest):
-    """The finished cells (force, solved) of the study `digest` kept in `path`, or None
-    when the file is missing or holds another study (another finger or settings)."""
+def _study_hash(kind: str, finger: Finger, settings: dict) -> str:
+    key = {"kind": kind, "version": _RECORD_VERSION, "finger": finger_digest(finger), **settings}
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
+
+
+def _read_record(path, digest, kind, say):
+    """The record of the study `digest` kept in `path` (a dict), or None when the file is
+    missing or holds another study (said). A file that is no JSON object is refused."""
     if not os.path.exists(path):
         return None
     try:
         with open(path, encoding="utf-8") as fh:
             rec = json.load(fh)
+        if not isinstance(rec, dict):
+            raise ValueError("not a JSON object")
     except (OSError, ValueError) as exc:
         raise StudyRecordError(
-            f"{path}: not a clamp-study record ({exc}); move it away to start afresh"
+            f"{path}: not a {kind} record ({exc}); move it away to start afresh"
         ) from None
-    if not isinstance(rec, dict) or rec.get("study_hash") != digest:
+    if rec.get("study_hash") != digest:
+        say(f"{path} holds another study (finger or settings differ): starting afresh")
         return None
-    force = np.asarray(rec["normal_force"], dtype=float)  # (null: failed or not solved)
-    return force, np.asarray(rec["solved"], dtype=bool)
+    return rec
+
+
+def _write_record(path, rec: dict) -> None:
+    """Rewrite a study's record atomically (an interruption leaves the old or the new)."""
+    parent = os.path.dirname(path)
+    if parent:
+        os.makedirs(parent, exist_ok=True)
+    fio._write_atomic(path, fio._json_text(fio._plain(rec)) + "\n")
 
 
 def clamp_study(
@@ -168,22 +241,19 @@ def clamp_study(
     force = np.full((len(dia), len(lc)), np.nan)
     solved = np.zeros(force.shape, bool)
     settings = {
-        "version": _CLAMP_RECORD_VERSION,
-        "finger": finger_digest(finger),
         "diameters": dia.tolist(),
         "clamp_lengths": lc.tolist(),
         "support_length": float(support_length),
         "closing": float(closing),
     }
-    digest = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()
+    digest = _study_hash("clamp-study", finger, settings)
     if record is not None:
         record = os.fspath(record)
-        kept = _read_clamp_record(record, digest)
+        kept = _read_record(record, digest, "clamp-study", say)
         if kept is not None:
-            force, solved = kept
+            force = np.asarray(kept["normal_force"], dtype=float)  # (null: failed or not solved)
+            solved = np.asarray(kept["solved"], dtype=bool)
             say(f"continuing {record}: {int(solved.sum())} of {solved.size} grasps done")
-        elif os.path.exists(record):
-            say(f"{record} holds another study (finger or settings differ): starting afresh")
 
     def study():
         return ClampStudy(dia, lc, float(support_length), force.copy())
@@ -202,10 +272,7 @@ def clamp_study(
         }
         if done:
             rec["best_clamp_length"] = study().best
-        parent = os.path.dirname(record)
-        if parent:
-            os.makedirs(parent, exist_ok=True)
-        fio._write_atomic(record, fio._json_text(fio._plain(rec)) + "\n")
+        _write_record(record, rec)
 
     for i, d in enumerate(dia):
         base = with_object(finger, d)

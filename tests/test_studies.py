@@ -81,3 +81,34 @@ def test_finger_digest_follows_every_value():
     thicker = eqx.tree_at(lambda f: f.back.thickness, finger, finger.back.thickness * 1.001)
     assert studies.finger_digest(finger) == studies.finger_digest(_finger())
     assert studies.finger_digest(thicker) != studies.finger_digest(finger)
+
+
+@pytest.mark.slow
+def test_an_interrupted_comparison_keeps_its_release_traces(tmp_path):
+    finger = _finger()
+    small = dict(release_diameters=(50.0,), pull_step=4.0)
+    clean = studies.compare_adaptors(finger, **small)
+    record = tmp_path / "compare_record.json"
+    said = []
+
+    def stop_at_second(msg):
+        said.append(msg)
+        if len([m for m in said if m.startswith("release force")]) == 2:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        studies.compare_adaptors(finger, **small, progress=stop_at_second, record=record)
+    kept = json.loads(record.read_text())
+    assert kept["complete"] is False and list(kept["release"]) == ["50 original"]
+
+    said = []
+    resumed = studies.compare_adaptors(finger, **small, progress=said.append, record=record)
+    assert said[0] == f"continuing {record}: 1 of 2 release traces done"
+    assert [m for m in said if m.startswith("release force")] == [
+        "release force, 50 mm object, modified adaptor"
+    ]
+    for a, b in zip(clean.release[50.0], resumed.release[50.0], strict=True):
+        assert b.peak == pytest.approx(a.peak, rel=1e-12) and b.complete == a.complete
+        np.testing.assert_allclose(b.force, a.force, rtol=1e-12, atol=1e-12)
+    assert resumed.release_gain(50.0) == pytest.approx(clean.release_gain(50.0), rel=1e-12)
+    assert json.loads(record.read_text())["complete"] is True
