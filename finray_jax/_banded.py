@@ -257,6 +257,12 @@ def factor(plan: BandPlan, Ap) -> BandLU:
     return BandLU(Ap, perms, sign)
 
 
+def no_factors(plan: BandPlan, dtype) -> BandLU:
+    """Zero factors of `factor`'s shapes (a loop's initial carry; no trace of a factor)."""
+    _, steps, h, _, P = _sizes(plan)
+    return BandLU(jnp.zeros((P, P), dtype), jnp.zeros((steps, h), jnp.int32), jnp.zeros((), dtype))
+
+
 def solve(plan: BandPlan, fac: BandLU, b):
     """x with A x = b for the factored A."""
     nb, steps, h, w, P = _sizes(plan)

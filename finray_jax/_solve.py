@@ -377,8 +377,11 @@ def _newton_lean(
             outside=outside,
         )
 
-    _, factors, _ = jax.eval_shape(lambda: _linearise(problem, lam, y0, solver))
     # (the factors' shapes do not depend on `order`)
+    if solver == "banded":  # (no trace of a linearisation: 0.5-0.8 s of tracing)
+        factors = _banded.no_factors(problem.topo.band, y0.dtype)
+    else:
+        factors = jax.eval_shape(lambda: _linearise(problem, lam, y0, solver))[1]
     init = _Newton(
         y=y0,
         norm=jnp.asarray(jnp.inf),
