@@ -134,7 +134,11 @@ class Solution(eqx.Module):
     back: BeamSolution
     crossbeams: BeamSolution  # stacked over crossbeams: s (C, N), position (C, N, 3) ...
     tip: Tip
-    unknowns: jax.Array  # scaled shooting unknowns, usable as a warm start
+    unknowns: jax.Array  # scaled shooting unknowns
+    # (S, n_unknown): each segment's start state minus its undeformed one: displacement
+    # and rotation (mm, rad), internal force and moment over the finger's E (mm^2, mm^3):
+    # what `init=` carries onto another design of the same topology
+    deformation: jax.Array
     mode: str = eqx.field(static=True)
     steps: int = eqx.field(static=True, default=0)  # integration steps per segment
 

@@ -808,26 +808,44 @@ def _direct_core(topo, integrator, options: SolverOptions, finger: Finger, init,
     return _outputs(problem, y, one, code, direct.k, traj), ok, direct.sign
 
 
+def _carry_scale(problem: Problem):
+    """Physical units of the unknowns, forces and moments per unit of the finger's
+    Young's modulus (mm^2, mm^3): what a deformation is carried in."""
+    geo = problem.geo
+    return problem.model.unknown_scale(geo.L, geo.F / problem.finger.material.E)
+
+
+def _deformation(problem: Problem, Y):
+    return (Y - problem.undeformed()) * _carry_scale(problem)
+
+
 @functools.partial(jax.jit, static_argnums=(0,))
 def deformation_of(topo, finger: Finger, unknowns):
-    """The deformation that scaled unknowns carry, (S, n_unknown) in physical units: each
-    segment's start state minus its undeformed one (displacement, rotation, and the
-    internal force and moment, which are zero undeformed)."""
+    """The deformation that scaled unknowns carry, (S, n_unknown): each segment's start
+    state minus its undeformed one, that is its displacement and rotation (mm, rad) and
+    its internal force and moment (zero undeformed) divided by the finger's Young's
+    modulus E (mm^2, mm^3)."""
     problem = _make_problem(topo, None, finger)
-    y = unknowns.reshape(problem.table.length.shape[0], -1)
-    return (y - problem.undeformed()) * problem.scale()
+    return _deformation(problem, unknowns.reshape(problem.table.length.shape[0], -1))
 
 
 def start_from_deformation(topo, finger: Finger, deformation):
     """Scaled unknowns of `finger` deformed as `deformation` says (from `deformation_of`
     on another finger of the same topology): every segment's undeformed start state plus
-    the other finger's displacement, rotation and internal wrench at its own segment start.
-    For a changed design this is a better Newton start than the other finger's unknowns
-    themselves, which also carry its undeformed geometry: on ref-A L1 with attachments
-    moved by up to 1 mm, 3.25 Newton iterations on average against 4.2 (and 4.0 from the
-    undeformed shape)."""
+    the other finger's displacement, rotation and internal wrench per unit E at its own
+    segment start. For a changed design this is a better Newton start than the other
+    finger's unknowns themselves, which also carry its undeformed geometry: on ref-A L1
+    with attachments moved by up to 1 mm, 3.25 Newton iterations on average against 4.2
+    (and 4.0 from the undeformed shape).
+
+    Forces travel per unit E: for a change of E alone the start is then the old
+    equilibrium at loads scaled by the ratio of the moduli, an equilibrium of the new
+    design (in physical units L2 at E x 0.97 took 58 iterations, its direct Newton
+    failing, against 6); a change of a thickness keeps the forces (in scaled unknowns,
+    whose forces are in units of EI_front / L^2, L2 at front thickness x 1.01 took 60
+    against 4)."""
     problem = _make_problem(topo, None, finger)
-    return (problem.undeformed() + deformation / problem.scale()).reshape(-1)
+    return (problem.undeformed() + deformation / _carry_scale(problem)).reshape(-1)
 
 
 @functools.partial(jax.jit, static_argnums=(0,))
@@ -950,6 +968,7 @@ def _outputs(problem: Problem, y, lam, code, iterations, traj=None) -> Solution:
         crossbeams=crossbeams,
         tip=tip,
         unknowns=y,
+        deformation=_deformation(problem, Y),
         mode=topo.mode,
         steps=problem.integrator.steps,
     )
@@ -1004,6 +1023,23 @@ def topology_of(finger: Finger, mode: str = "auto"):
     return prepare(finger, mode)
 
 
+_start_from_deformation = jax.jit(start_from_deformation, static_argnums=0)
+
+
+def _carried(topo, finger: Finger, init: Solution):
+    """The Newton start `init` gives this finger (`solve_finger`'s init=), checked."""
+    if not isinstance(init, Solution):
+        raise TypeError(f"init must be a Solution, got {type(init).__name__}")
+    shape = (topo.n_segments, topo.model.n_unknown)
+    if init.mode != topo.mode or init.deformation.shape != shape:
+        raise ValueError(
+            f"init is a {init.mode} solution of {init.deformation.shape[0]} segments; this "
+            f"finger's topology is {topo.mode} with {shape[0]}: pass a Solution of the same "
+            "topology (topology=, mode=)"
+        )
+    return _start_from_deformation(topo, finger, init.deformation)
+
+
 def solve_finger(
     finger: Finger,
     *,
@@ -1018,11 +1054,15 @@ def solve_finger(
 
     mode: "planar" (x, z, theta), "spatial" (3-D) or "auto" (planar when every load lies
         in the x-z plane).
-    init: a previous Solution of the same topology to start Newton from (warm start).
+    init: a previous Solution of the same topology to start Newton from (warm start):
+        its deformation (`Solution.deformation`: each segment's displacement, rotation
+        and internal wrench) carried onto this finger's undeformed shape, so a start from
+        another design keeps its physical forces (the scaled unknowns would rescale them
+        with this finger's EI_front / L^2).
     throw: raise if the solve does not converge (use False in batches and read `result`).
     """
     topo = prepare(finger, mode, topology)
-    y0 = None if init is None else init.unknowns
+    y0 = None if init is None else _carried(topo, finger, init)
     if options.direct_first and _is_concrete((finger, y0)):
         # Called eagerly: compile and run the direct solve alone, and compile the
         # continuation only for fingers that need it.

@@ -349,6 +349,46 @@ def test_warm_start(sol_l1):
     assert np.max(np.abs(np.asarray(cold.tip.position - sol_l1.tip.position))) > 1e-5
 
 
+@pytest.mark.parametrize(
+    "change",
+    [("front", "thickness", 1.01), ("front", "thickness", 0.97), ("material", "E", 0.97)],
+)
+def test_a_warm_start_from_another_design_carries_its_deformation(sol_l2, change):
+    """init= carries the other design's deformation (displacements, rotations, and forces
+    per unit E) onto this design. L2 lies at 82 % of its fold, where Newton's basin is
+    small: from the other design's scaled unknowns (forces in units of EI_front / L^2) a
+    1 % thicker front beam took 60 iterations, its direct Newton failing; from physical
+    forces E x 0.97 took 58. Both converge directly now, on the cold solve's root."""
+    owner, name, factor = change
+    finger = _ref("L2")
+    part = getattr(finger, owner)
+    changed = _replace(
+        finger,
+        **{owner: eqx.tree_at(lambda p: getattr(p, name), part, getattr(part, name) * factor)},
+    )
+    cold = _solve_ok(changed, mode="planar")
+    warm = _solve_ok(changed, mode="planar", init=sol_l2)
+    assert int(warm.iterations) <= 8, int(warm.iterations)
+    assert int(warm.iterations) < int(cold.iterations)
+    for (beam, a), (_, b) in zip(_beams(cold), _beams(warm)):
+        np.testing.assert_allclose(
+            np.asarray(b.position), np.asarray(a.position), rtol=0, atol=1e-9, err_msg=beam
+        )
+    # the deformation travels back unchanged: the same design starts at its own root
+    topo = fr.topology_of(finger, "planar")
+    start = _solve.start_from_deformation(topo, finger, sol_l2.deformation)
+    np.testing.assert_allclose(start, sol_l2.unknowns, rtol=1e-14, atol=1e-14)
+    assert int(fr.solve_finger(finger, mode="planar", init=sol_l2).iterations) == 1
+
+
+def test_a_warm_start_of_another_topology_is_refused(sol_l2, sol_l1_spatial):
+    with pytest.raises(
+        ValueError,
+        match="init is a spatial solution of 24 segments; this finger's topology is planar with 24",
+    ):
+        fr.solve_finger(_ref("L2"), mode="planar", init=sol_l1_spatial)
+
+
 def test_a_start_at_the_root_is_confirmed_when_the_residual_floor_exceeds_atol(sol_l1):
     """Newton started at a root whose residual cannot reach atol (round-off; with a stiff
     contact penalty this floor lay above the default 1e-10, and a regrasp from a converged
