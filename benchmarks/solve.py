@@ -7,7 +7,9 @@ Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   and for L1 the time of a `solve_finger` call from Python (finger checks included),
   cold solve (from the undeformed guess), median of repeats,
   warm re-solve after a 1 % change of the back-beam thickness, starting from the previous
-  solution (init=...), median of repeats.
+  solution (init=...), median of repeats; and after a 1 % change of the front-beam
+  thickness, started from the previous solution's carried deformation as
+  `solve_finger(init=)` starts it (the iterations from its scaled unknowns beside it).
 Baselines timed in the same run for L1, so figures from noisy machines can be compared:
 the same solve through `diffrax.diffeqsolve` instead of the tableau stepper, and with
 the dense LU (`SolverOptions(linear_solver="dense")`) instead of the banded one, and
@@ -57,12 +59,25 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
         ),
         repeats,
     )
+    # A 1 % thicker front beam, started as solve_finger(init=sol) starts it: the carried
+    # deformation (Solution.deformation); the scaled unknowns' iterations beside it.
+    front = eqx.tree_at(lambda f: f.front.thickness, finger, finger.front.thickness * 1.01)
+    start = _solve.start_from_deformation(topo, front, sol.deformation)
+    front_sol = _solve._solve_core(topo, integrator, opts, front, start)
+    warm_front, _ = median_time(
+        lambda: jax.block_until_ready(_solve._solve_core(topo, integrator, opts, front, start)),
+        repeats,
+    )
+    scaled = _solve._solve_core(topo, integrator, opts, front, sol.unknowns)
     return {
         "case": case,
         "mode": mode,
         "status": sol.status,
         "iterations_cold": int(sol.iterations),
         "iterations_warm": int(warm_sol.iterations),
+        "warm_front_ms": 1e3 * warm_front,
+        "iterations_warm_front": int(front_sol.iterations),
+        "iterations_warm_front_from_scaled_unknowns": int(scaled.iterations),
         "tip_dx_mm": float(sol.tip.displacement[0]),
         "compile_s": compile_s,
         "direct_compile_s": direct_compile_s,
@@ -133,7 +148,10 @@ def main():
                 f"{case} {mode:8s} {row['status']:10s} compile {row['compile_s']:6.1f} s "
                 f"(direct {row['direct_compile_s']:4.1f} s)  "
                 f"cold {row['cold_ms']:8.2f} ms ({row['iterations_cold']} it)  "
-                f"warm {row['warm_ms']:8.2f} ms ({row['iterations_warm']} it)",
+                f"warm {row['warm_ms']:8.2f} ms ({row['iterations_warm']} it)  "
+                f"warm, front 1 % thicker {row['warm_front_ms']:6.2f} ms "
+                f"({row['iterations_warm_front']} it; "
+                f"{row['iterations_warm_front_from_scaled_unknowns']} from the scaled unknowns)",
                 flush=True,
             )
     eager = []
