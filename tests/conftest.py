@@ -9,6 +9,14 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
+@pytest.fixture(autouse=True)
+def _no_persistent_cache(monkeypatch):
+    """No test reads or writes the user's compilation cache (a CLI call in-process turns it
+    on for the rest of the session; two test processes sharing it can read a half-written
+    entry: one segfaulted in jax's cache read). A test of the cache sets its own."""
+    monkeypatch.setenv("FINRAY_NO_CACHE", "1")
+
+
 def pytest_addoption(parser):
     parser.addoption(
         "--runslow",
