@@ -11,10 +11,14 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 @pytest.fixture(autouse=True)
 def _no_persistent_cache(monkeypatch):
-    """No test reads or writes the user's compilation cache (a CLI call in-process turns it
-    on for the rest of the session; two test processes sharing it can read a half-written
-    entry: one segfaulted in jax's cache read). A test of the cache sets its own."""
+    """No test reads or writes a persistent compilation cache: a CLI call in-process turns
+    it on for the rest of the session, and the suite then read the user's cache (where an
+    interrupted run can leave a half-written entry) and twice segfaulted in jax's cache
+    code. A test of the cache sets its own; whatever a test leaves set is turned off."""
     monkeypatch.setenv("FINRAY_NO_CACHE", "1")
+    yield
+    if jax.config.jax_compilation_cache_dir is not None:
+        jax.config.update("jax_compilation_cache_dir", None)
 
 
 def pytest_addoption(parser):
