@@ -274,9 +274,9 @@ def _chunk_core(
 # --------------------------------------------------------------------------------------
 
 
-def _init_deformation(init, topo, base: Finger):
-    """The shared start of a batch's Newton solves: the deformation of init (a Solution of
-    the base finger; `_solve.deformation_of`), or None."""
+def _init_deformation(init, topo):
+    """The shared start of a batch's Newton solves: the deformation init carries (a
+    Solution of the base finger: `Solution.deformation`), or None."""
     if init is None:
         return None
     if not isinstance(init, Solution):
@@ -288,7 +288,7 @@ def _init_deformation(init, topo, base: Finger):
             f"init is a {init.mode} solution with {y.size} unknowns; the batch's topology is "
             f"{topo.mode} with {n}: pass a Solution of the base finger in the batch's mode"
         )
-    return _solve.deformation_of(topo, base, jnp.asarray(y))
+    return jnp.asarray(init.deformation)
 
 
 def _check_values(base: Finger, values: Mapping) -> tuple[dict[str, np.ndarray], int]:
@@ -397,7 +397,7 @@ def iter_batch(
     n_dev = 1 if mesh is None else mesh.size
     fill = {k: np.asarray(v) for k, v in get_design(base_finger, list(arrays)).items()}
     continuation = dataclasses.replace(options, direct_first=False)
-    y0 = _init_deformation(init, topo, base_finger)
+    y0 = _init_deformation(init, topo)
     diagnosis = Diagnosis(base_finger, topo.mode, topo)
     if y0 is not None and mesh is None:  # (on the chunk's device, wherever init was)
         y0 = jax.device_put(y0, target)
