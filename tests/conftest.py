@@ -2,23 +2,66 @@
 promotion, and slow tests opt-in (--runslow or -m slow).
 """
 
+import gc
+import os
+
 import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+# No persistent compilation cache in the test process. Setting jax_compilation_cache_dir
+# back to None does not turn one off: jax decides at its first compile whether the cache
+# is used (compilation_cache.is_cache_used latches) and opens it at the first compile
+# that finds a directory set (_initialize_cache, once), then reads and writes it for the
+# rest of the process. With this off, neither ever happens.
+jax.config.update("jax_enable_compilation_cache", False)
 
 
 @pytest.fixture(autouse=True)
 def _no_persistent_cache(monkeypatch):
-    """No test reads or writes a persistent compilation cache: a CLI call in-process turns
-    it on for the rest of the session, and the suite then read the user's cache (where an
-    interrupted run can leave a half-written entry) and twice segfaulted in jax's cache
-    code. A test of the cache sets its own; whatever a test leaves set is turned off."""
+    """No CLI call in-process sets a compilation cache directory (it would be unused, see
+    above: the suite twice segfaulted in jax's cache code when a CLI call had opened the
+    user's cache in-process). A test of the cache settings sets its own; a directory a
+    test leaves set is unset."""
     monkeypatch.setenv("FINRAY_NO_CACHE", "1")
     yield
     if jax.config.jax_compilation_cache_dir is not None:
         jax.config.update("jax_compilation_cache_dir", None)
+
+
+# The suite compiles a few hundred XLA programs in one process, and every compiled CPU
+# program keeps its own memory mappings (ref-A's planar solve, its jitted parts together:
+# ~790). Linux refuses new mappings beyond vm.max_map_count (65530 by default), and XLA's
+# compiler then segfaults: the default suite did, at 84-90 % (test_validation), here and in
+# CI. When a test leaves more than MAX_MAPS mappings, every jax cache is cleared (the
+# programs are freed with their mappings; a later test that needs one compiles it again).
+MAX_MAPS = 40_000
+_MAPS = f"/proc/{os.getpid()}/maps"
+_cleared = []  # the mapping counts at which the caches were cleared
+
+
+def _mappings() -> int | None:
+    try:
+        with open(_MAPS) as f:
+            return sum(1 for _ in f)
+    except OSError:  # (not Linux)
+        return None
+
+
+def pytest_runtest_teardown(item):
+    n = _mappings()
+    if n is not None and n > MAX_MAPS:
+        jax.clear_caches()
+        gc.collect()
+        _cleared.append((n, _mappings(), item.nodeid))
+
+
+def pytest_terminal_summary(terminalreporter):
+    for before, after, nodeid in _cleared:
+        terminalreporter.write_line(
+            f"jax caches cleared after {nodeid}: {before} -> {after} memory mappings"
+        )
 
 
 def pytest_addoption(parser):
