@@ -267,6 +267,7 @@ def _with_near(finger, near):
     )
 
 
+@pytest.mark.slow  # (139 s: three contact topologies and a path solver compile)
 def test_contact_beyond_the_near_segments_is_found():
     """A distributed load presses the cantilever's outer half onto a parallel wall: 14 of
     its 24 segments touch. A Newton solve that evaluates contact on fewer segments must say

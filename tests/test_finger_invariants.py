@@ -407,7 +407,8 @@ def test_a_start_at_the_root_is_confirmed_when_the_residual_floor_exceeds_atol(s
     )
 
 
-@pytest.mark.parametrize("case", ["L1", "L2", "L3"])
+# (L3, 34 s of compiling, is slow: L1 and L2 cover the chord steps in the default suite)
+@pytest.mark.parametrize("case", ["L1", "L2", pytest.param("L3", marks=pytest.mark.slow)])
 def test_chord_steps_reach_the_same_root_as_newton(case):
     """SolverOptions.reuse_jacobian (default): near the root, steps with the last
     factors and a fresh residual. Same roots as Newton alone, cold and after a 1 % change
@@ -565,7 +566,12 @@ def test_the_fold_is_found_at_any_load_magnitude():
 
 @pytest.mark.parametrize(
     "case,mode",
-    [("L2", "planar"), ("L3", "planar"), pytest.param("L3", "spatial", marks=pytest.mark.slow)],
+    # (L3 planar, 62 s, is slow: L2 checks the same tangent in the default suite)
+    [
+        ("L2", "planar"),
+        pytest.param("L3", "planar", marks=pytest.mark.slow),
+        pytest.param("L3", "spatial", marks=pytest.mark.slow),
+    ],
 )
 def test_bordered_linearisation_gives_the_path_tangent(case, mode):
     """The continuation's corrector and tangent read b = J^-1 dr/dlam from `_bordered`,
