@@ -267,16 +267,34 @@ def _with_near(finger, near):
     )
 
 
+def _pressed_onto_a_wall():
+    """A distributed load presses the cantilever's outer half onto a parallel wall: 14 of
+    its 24 segments touch."""
+    wall = fr.HalfPlane((-(T / 2 + 0.3), 0.0), (1.0, 0.0))
+    load = fr.DistributedLoad(0, (60.0, 120.0), (-0.3, 0.0, 0.0))
+    return _cantilever_finger([wall], 0.1, [load])
+
+
+def test_too_few_near_segments_is_reported():
+    """The default suite's share of the slow test below (one compile): with contact on 8
+    segments only, the direct solve stops with the result that names the setting."""
+    finger = _with_near(_pressed_onto_a_wall(), 8)
+    topo = fr.topology_of(finger, "planar")
+    sol, _, _ = _direct_core(
+        topo, fr.Integrator(steps=16), fr.SolverOptions(), finger, None, np.float64(0.0)
+    )
+    assert not sol.converged
+    assert sol.result == fr.RESULTS.contact_outside_near_segments
+    assert "Contact.near_segments" in f"{fr.RESULTS[sol.result]}"
+
+
 @pytest.mark.slow  # (139 s: three contact topologies and a path solver compile)
 def test_contact_beyond_the_near_segments_is_found():
-    """A distributed load presses the cantilever's outer half onto a parallel wall: 14 of
-    its 24 segments touch. A Newton solve that evaluates contact on fewer segments must say
-    so (it chooses the near segments three times, each time finding contact outside);
-    with enough of them it finds the whole finger's root, which every segment gives."""
-    gap = 0.3
-    wall = fr.HalfPlane((-(T / 2 + gap), 0.0), (1.0, 0.0))
-    load = fr.DistributedLoad(0, (60.0, 120.0), (-0.3, 0.0, 0.0))
-    base = _cantilever_finger([wall], 0.1, [load])
+    """The cantilever pressed onto a wall (`_pressed_onto_a_wall`). A Newton solve that
+    evaluates contact on fewer segments than touch must say so (it chooses the near
+    segments three times, each time finding contact outside); with enough of them it finds
+    the whole finger's root, which every segment gives."""
+    base = _pressed_onto_a_wall()
     solutions = {}
     for near in (None, 8, 16):
         finger = _with_near(base, near)
