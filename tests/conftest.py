@@ -22,12 +22,8 @@ jax.config.update("jax_enable_compilation_cache", False)
 def _no_persistent_cache(monkeypatch):
     """No CLI call in-process sets a compilation cache directory (it would be unused, see
     above: the suite twice segfaulted in jax's cache code when a CLI call had opened the
-    user's cache in-process). A test of the cache settings sets its own; a directory a
-    test leaves set is unset."""
+    user's cache in-process). A test of the cache settings sets its own and restores it."""
     monkeypatch.setenv("FINRAY_NO_CACHE", "1")
-    yield
-    if jax.config.jax_compilation_cache_dir is not None:
-        jax.config.update("jax_compilation_cache_dir", None)
 
 
 # The suite compiles a few hundred XLA programs in one process, and every compiled CPU

@@ -38,12 +38,6 @@ SOLUTION_KEYS = {
 }
 
 
-@pytest.fixture(autouse=True)
-def _no_persistent_cache(monkeypatch):
-    # The CLI turns on JAX's persistent cache; keep the test process's JAX config alone.
-    monkeypatch.setenv("FINRAY_NO_CACHE", "1")
-
-
 def run(argv):
     """cli.main(argv) with stdout and stderr captured: (exit code, stdout, stderr)."""
     out, err = io.StringIO(), io.StringIO()

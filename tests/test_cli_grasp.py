@@ -10,11 +10,6 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 GRASP = str(ROOT / "examples" / "grasp_finger1.toml")
 
 
-@pytest.fixture(autouse=True)
-def _no_persistent_cache(monkeypatch):
-    monkeypatch.setenv("FINRAY_NO_CACHE", "1")
-
-
 def test_grasp_command_writes_contact_outputs(tmp_path):
     out = tmp_path / "g.json"
     png = tmp_path / "g.png"

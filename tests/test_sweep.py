@@ -45,11 +45,6 @@ points = 2
 """
 
 
-@pytest.fixture(autouse=True)
-def _no_persistent_cache(monkeypatch):
-    monkeypatch.setenv("FINRAY_NO_CACHE", "1")
-
-
 @pytest.fixture
 def sweep_file(tmp_path):
     shutil.copy(ROOT / "examples" / "ref_a.toml", tmp_path / "ref_a.toml")
