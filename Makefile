@@ -4,6 +4,10 @@ PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# Test processes (pytest-xdist; whole files per process, as they share compiled programs).
+# Each holds up to ~5 GB; 0 runs the suite in this process.
+TEST_WORKERS ?= 2
+PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 .PHONY: demo test test-all bench lint clean
 
@@ -18,10 +22,10 @@ demo: $(STAMP)
 	$(BIN)/finray demo --out demo_output
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow and not opensees"
+	$(PYTEST) -m "not slow and not opensees"
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q --runslow
+	$(PYTEST) --runslow
 
 bench: $(STAMP)
 	taskset -c 0 $(BIN)/python benchmarks/solve.py

@@ -33,13 +33,13 @@ def _no_persistent_cache(monkeypatch):
 # CI. When a test leaves more than MAX_MAPS mappings, every jax cache is cleared (the
 # programs are freed with their mappings; a later test that needs one compiles it again).
 MAX_MAPS = 40_000
-_MAPS = f"/proc/{os.getpid()}/maps"
-_cleared = []  # the mapping counts at which the caches were cleared
+_CLEARED = "jax caches cleared"  # (a user property: xdist carries it from its workers)
+_cleared = []  # the lines to print in the summary
 
 
 def _mappings() -> int | None:
     try:
-        with open(_MAPS) as f:
+        with open(f"/proc/{os.getpid()}/maps") as f:
             return sum(1 for _ in f)
     except OSError:  # (not Linux)
         return None
@@ -50,14 +50,18 @@ def pytest_runtest_teardown(item):
     if n is not None and n > MAX_MAPS:
         jax.clear_caches()
         gc.collect()
-        _cleared.append((n, _mappings(), item.nodeid))
+        item.user_properties.append((_CLEARED, f"{n} -> {_mappings()} memory mappings"))
+
+
+def pytest_runtest_logreport(report):
+    for key, value in getattr(report, "user_properties", ()):
+        if key == _CLEARED and report.when == "teardown":
+            _cleared.append(f"{_CLEARED} after {report.nodeid}: {value}")
 
 
 def pytest_terminal_summary(terminalreporter):
-    for before, after, nodeid in _cleared:
-        terminalreporter.write_line(
-            f"jax caches cleared after {nodeid}: {before} -> {after} memory mappings"
-        )
+    for line in _cleared:
+        terminalreporter.write_line(line)
 
 
 def pytest_addoption(parser):
