@@ -3,7 +3,6 @@ promotion, and slow tests opt-in (--runslow or -m slow).
 """
 
 import gc
-import os
 
 import jax
 import pytest
@@ -33,13 +32,14 @@ def _no_persistent_cache(monkeypatch):
 # CI. When a test leaves more than MAX_MAPS mappings, every jax cache is cleared (the
 # programs are freed with their mappings; a later test that needs one compiles it again).
 MAX_MAPS = 40_000
+_MAPS = "/proc/self/maps"
 _CLEARED = "jax caches cleared"  # (a user property: xdist carries it from its workers)
 _cleared = []  # the lines to print in the summary
 
 
 def _mappings() -> int | None:
     try:
-        with open(f"/proc/{os.getpid()}/maps") as f:
+        with open(_MAPS) as f:
             return sum(1 for _ in f)
     except OSError:  # (not Linux)
         return None
