@@ -7,7 +7,9 @@ Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   and for L1 the time of a `solve_finger` call from Python (finger checks included),
   cold solve (from the undeformed guess), median of repeats,
   warm re-solve after a 1 % change of the back-beam thickness, starting from the previous
-  solution (init=...), median of repeats; and after a 1 % change of the front-beam
+  solution as `solve_finger(init=)` does (its unknowns and the factors of its Jacobian
+  that an eager solve keeps), median of repeats, with the start from the unknowns alone
+  beside it (the warm start before session 25); and after a 1 % change of the front-beam
   thickness, started from the previous solution's carried deformation as
   `solve_finger(init=)` starts it (the iterations from its scaled unknowns beside it).
 Baselines timed in the same run for L1, so figures from noisy machines can be compared:
@@ -33,7 +35,7 @@ import jax
 from _common import machine, median_time, pin_to_one_core, write
 
 import finray_jax as fr
-from finray_jax import _solve
+from finray_jax import _banded, _solve
 
 
 def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.SolverOptions()):
@@ -50,19 +52,35 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
         repeats,
     )
     thicker = eqx.tree_at(lambda f: f.back.thickness, finger, finger.back.thickness * 1.01)
+    # The warm start as `solve_finger(init=sol)` makes it: the unknowns and the factors
+    # of Newton's last linearisation, which an eager solve keeps (Solution.jacobian).
+    eager = _solve._direct_core(topo, integrator, opts, finger, None, keep_jacobian=True)[0]
+    use = jax.numpy.asarray(eager.jacobian is not None)
+    factors = eager.jacobian if use else _banded.no_factors(topo.band, jax.numpy.float64)
+    warm_start = _solve.WarmStart(sol.unknowns, factors, use)
     warm_sol = jax.block_until_ready(
-        _solve._solve_core(topo, integrator, opts, thicker, sol.unknowns)
+        _solve._solve_core(topo, integrator, opts, thicker, warm_start)
     )
     warm, n_warm = median_time(
+        lambda: jax.block_until_ready(
+            _solve._solve_core(topo, integrator, opts, thicker, warm_start)
+        ),
+        repeats,
+    )
+    # Baseline in the same run: the start from the unknowns alone (before session 25).
+    plain_sol = _solve._solve_core(topo, integrator, opts, thicker, sol.unknowns)
+    plain, _ = median_time(
         lambda: jax.block_until_ready(
             _solve._solve_core(topo, integrator, opts, thicker, sol.unknowns)
         ),
         repeats,
     )
     # A 1 % thicker front beam, started as solve_finger(init=sol) starts it: the carried
-    # deformation (Solution.deformation); the scaled unknowns' iterations beside it.
+    # deformation (Solution.deformation) and the factors; the scaled unknowns' iterations
+    # beside it.
     front = eqx.tree_at(lambda f: f.front.thickness, finger, finger.front.thickness * 1.01)
     start = _solve.start_from_deformation(topo, front, sol.deformation)
+    start = _solve.WarmStart(start, factors, use)
     front_sol = _solve._solve_core(topo, integrator, opts, front, start)
     warm_front, _ = median_time(
         lambda: jax.block_until_ready(_solve._solve_core(topo, integrator, opts, front, start)),
@@ -75,6 +93,8 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
         "status": sol.status,
         "iterations_cold": int(sol.iterations),
         "iterations_warm": int(warm_sol.iterations),
+        "warm_unknowns_only_ms": 1e3 * plain,
+        "iterations_warm_unknowns_only": int(plain_sol.iterations),
         "warm_front_ms": 1e3 * warm_front,
         "iterations_warm_front": int(front_sol.iterations),
         "iterations_warm_front_from_scaled_unknowns": int(scaled.iterations),
@@ -148,7 +168,9 @@ def main():
                 f"{case} {mode:8s} {row['status']:10s} compile {row['compile_s']:6.1f} s "
                 f"(direct {row['direct_compile_s']:4.1f} s)  "
                 f"cold {row['cold_ms']:8.2f} ms ({row['iterations_cold']} it)  "
-                f"warm {row['warm_ms']:8.2f} ms ({row['iterations_warm']} it)  "
+                f"warm {row['warm_ms']:8.2f} ms ({row['iterations_warm']} it; from the "
+                f"unknowns alone {row['warm_unknowns_only_ms']:.2f} ms, "
+                f"{row['iterations_warm_unknowns_only']} it)  "
                 f"warm, front 1 % thicker {row['warm_front_ms']:6.2f} ms "
                 f"({row['iterations_warm_front']} it; "
                 f"{row['iterations_warm_front_from_scaled_unknowns']} from the scaled unknowns)",

@@ -141,6 +141,10 @@ class Solution(eqx.Module):
     deformation: jax.Array
     mode: str = eqx.field(static=True)
     steps: int = eqx.field(static=True, default=0)  # integration steps per segment
+    # The banded LU of the shooting Jacobian at Newton's last linearisation (eager
+    # `solve_finger` with the banded solver; None otherwise): a warm start from this
+    # solution (`init=`) begins with chord steps on it instead of a linearisation.
+    jacobian: object = None
 
     @property
     def status(self) -> str:

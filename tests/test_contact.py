@@ -288,6 +288,28 @@ def test_too_few_near_segments_is_reported():
     assert "Contact.near_segments" in f"{fr.RESULTS[sol.result]}"
 
 
+def test_a_warm_start_with_contact_begins_on_the_factors():
+    """A warm start from a solution's Jacobian factors, with contact on the near segments:
+    its first chord step reads the residual at the start (later ones read the residual
+    that the backtracking of the step before left where it ends, which does not exist
+    yet; zeros there would stop Newton at the start). It reaches the root of a start
+    without the factors."""
+    finger = _with_near(_pressed_onto_a_wall(), 16)
+    integrator = fr.Integrator(steps=16)
+    base = fr.solve_finger(finger, mode="planar", integrator=integrator)
+    assert base.converged and base.jacobian is not None
+    plain_init = eqx.tree_at(lambda s: s.jacobian, base, None, is_leaf=lambda x: x is None)
+    for factor in (1.05, 1.2):
+        pressed = finger.scale_loads(factor)
+        plain = fr.solve_finger(pressed, mode="planar", integrator=integrator, init=plain_init)
+        warm = fr.solve_finger(pressed, mode="planar", integrator=integrator, init=base)
+        assert plain.converged and warm.converged
+        gap = np.abs(np.asarray(warm.front.position) - np.asarray(plain.front.position))
+        assert np.max(gap) < 1e-9
+        assert np.max(np.abs(np.asarray(warm.tip.position - base.tip.position))) > 1e-3
+    assert int(warm.iterations) != int(plain.iterations)  # (the factors were used)
+
+
 @pytest.mark.slow  # (139 s: three contact topologies and a path solver compile)
 def test_contact_beyond_the_near_segments_is_found():
     """The cantilever pressed onto a wall (`_pressed_onto_a_wall`). A Newton solve that

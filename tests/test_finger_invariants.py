@@ -18,7 +18,7 @@ import pytest
 from helpers import beam_at, global_balance
 
 import finray_jax as fr
-from finray_jax import _solve
+from finray_jax import _banded, _solve
 from finray_jax._rotation import planar_frame
 
 LB = float(np.hypot(40.0, 120.0))  # back-beam length of ref-A
@@ -328,25 +328,70 @@ def test_design_values_do_not_recompile(sol_l1, monkeypatch):
 # --------------------------------------------------------------------------------------
 
 
+def _without_jacobian(sol):
+    return eqx.tree_at(lambda s: s.jacobian, sol, None, is_leaf=lambda x: x is None)
+
+
+def _same_root(a, b, atol=1e-9):
+    # rtol = atol = 1e-10 on unknowns scaled by 120 mm leaves ~1e-12 mm; compare to 1e-9
+    for (name, p), (_, q) in zip(_beams(a), _beams(b)):
+        np.testing.assert_allclose(
+            np.asarray(q.position), np.asarray(p.position), rtol=0, atol=atol, err_msg=name
+        )
+    np.testing.assert_allclose(
+        np.asarray(b.reactions_back.moment), np.asarray(a.reactions_back.moment), atol=atol
+    )
+
+
 def test_warm_start(sol_l1):
     finger = _replace(_ref("L1"), back=fr.Section(1.5 * 1.01, 20.0))
     cold = _solve_ok(finger, mode="planar")
+    # from the deformation alone: fewer Newton iterations than from the undeformed shape
+    plain = _solve_ok(finger, mode="planar", init=_without_jacobian(sol_l1))
+    assert int(plain.iterations) < int(cold.iterations), (plain.iterations, cold.iterations)
+    # with sol_l1's Jacobian factors too (chord steps from the start): another path
+    assert sol_l1.jacobian is not None
     warm = _solve_ok(finger, mode="planar", init=sol_l1)
-    assert int(warm.iterations) < int(cold.iterations), (warm.iterations, cold.iterations)
-    # Both converge to the same root: rtol = atol = 1e-10 on unknowns scaled by 120 mm,
-    # quadratic convergence leaves ~1e-12 mm; compare to 1e-9 mm.
-    for (name, a), (_, b) in zip(_beams(cold), _beams(warm)):
-        np.testing.assert_allclose(
-            np.asarray(b.position), np.asarray(a.position), rtol=0, atol=1e-9, err_msg=name
-        )
-    np.testing.assert_allclose(
-        np.asarray(warm.reactions_back.moment),
-        np.asarray(cold.reactions_back.moment),
-        rtol=0,
-        atol=1e-9,
-    )
+    assert int(warm.iterations) != int(plain.iterations)
+    # all three converge to the same root
+    _same_root(cold, plain)
+    _same_root(cold, warm)
     # The thicker back beam really changed the answer.
     assert np.max(np.abs(np.asarray(cold.tip.position - sol_l1.tip.position))) > 1e-5
+
+
+def test_a_warm_start_with_poor_factors_still_reaches_the_root(sol_l1, sol_l2):
+    """Chord steps on a warm start's factors fall back to Newton when they do not help:
+    factors of the L1 load's Jacobian used for L2 (82 % of its fold), and of -J (every
+    chord step goes the wrong way: its trial is linearised at the start instead) reach
+    the cold root."""
+    finger = _ref("L2")
+    topo = fr.topology_of(finger, "planar")
+    other = _solve_ok(finger, mode="planar", init=sol_l1)
+    _same_root(sol_l2, other)
+    problem = _solve._make_problem(topo, fr.Integrator(), finger)
+    fn = lambda y: _solve._natural_fn(y, (problem, 1.0))
+    _, A = _banded.linearize(topo.band, fn, sol_l2.unknowns)
+    flipped = eqx.tree_at(lambda s: s.jacobian, sol_l2, _banded.factor(topo.band, -A))
+    changed = _replace(finger, back=fr.Section(1.5 * 1.01, 20.0))
+    cold = _solve_ok(changed, mode="planar", init=_without_jacobian(sol_l2))
+    wrong = _solve_ok(changed, mode="planar", init=flipped)
+    _same_root(cold, wrong)
+    # a wasted chord step and its rejected trial, then the plain start's path
+    assert int(wrong.iterations) == int(cold.iterations) + 2, (wrong.iterations, cold.iterations)
+
+
+def test_jacobian_factors_are_kept_only_where_asked(sol_l1):
+    finger = _replace(_ref("L1"), back=fr.Section(1.5 * 1.01, 20.0))
+    assert fr.solve_finger(finger, mode="planar", keep_jacobian=False).jacobian is None
+    dense = fr.SolverOptions(linear_solver="dense")
+    assert fr.solve_finger(finger, mode="planar", options=dense, init=sol_l1).jacobian is None
+    # traced (jit): the full core starts from the factors and keeps none
+    topo = fr.topology_of(finger, "planar")
+    jitted = jax.jit(lambda f, s: fr.solve_finger(f, topology=topo, init=s))(finger, sol_l1)
+    assert jitted.jacobian is None
+    _same_root(_solve_ok(finger, mode="planar", init=sol_l1), jitted)
+    assert int(jitted.iterations) == int(fr.solve_finger(finger, init=sol_l1).iterations)
 
 
 @pytest.mark.parametrize(
