@@ -7,8 +7,7 @@ beams by up to +-1 mm (crossbeam 3 sits at the load point; moving it changes the
 For batch sizes 1, 16, 64, 256, 1024 (one chunk each), with the designs of a chunk
 vmapped (vectorize=True) and mapped one after another (vectorize=False, the CPU default),
 each design started from the undeformed shape (cold) and, for batches above 1, from the
-base finger's solution (`solve_batch(..., init=...)`, warm: its deformation alone, and
-mapped also with its Jacobian's factors, on which every design begins with chord steps),
+base finger's solution (`solve_batch(..., init=...)`, warm),
 it records the compile time (first call, apart) and the median wall time of
 `solve_batch` end to end (checks, padding, transfer, solve, outputs; the base finger's
 topology is built and validated once, outside: that eager check alone costs ~30 ms), as
@@ -71,16 +70,10 @@ def base_solution():
 
 
 def bench_batch(n, vectorize, repeats, warm=False):
-    """warm: False (undeformed start), "deformation" (the base solution's deformation) or
-    "factors" (and its Jacobian's factors, as an eager solve keeps them: chord steps from
-    the start; mapped designs only, vmapped ones take no chord steps)."""
     values = designs(n)
     kw = dict(chunk_size=n, vectorize=vectorize, topology=TOPO)
     if warm:
-        base = base_solution()
-        if warm == "deformation":
-            base = eqx.tree_at(lambda s: s.jacobian, base, None, is_leaf=lambda x: x is None)
-        kw["init"] = base
+        kw["init"] = base_solution()
     run = lambda: solve_batch(BASE, values, ["tip.dx"], **kw)
     t0 = time.perf_counter()
     res = run()
@@ -89,9 +82,7 @@ def bench_batch(n, vectorize, repeats, warm=False):
     return {
         "batch": n,
         "vectorize": "vmap" if vectorize else "map",
-        "start": {False: "undeformed", "deformation": "base deformation"}.get(
-            warm, "base deformation and factors"
-        ),
+        "start": "base solution" if warm else "undeformed",
         "compile_s": compile_s,
         "batch_ms": 1e3 * t,
         "ms_per_design": 1e3 * t / n,
@@ -208,12 +199,11 @@ def main():
     sizes = (1, 16) if args.quick else (1, 16, 64, 256, 1024)
     rows = []
     cases = [(v, n, False) for v in (True, False) for n in sizes]
-    cases += [(v, n, "deformation") for v in (True, False) for n in sizes if n > 1]
-    cases += [(False, n, "factors") for n in sizes if n > 1]
+    cases += [(v, n, True) for v in (True, False) for n in sizes if n > 1]
     for vectorize, n, warm in cases:
         row = bench_batch(n, vectorize, repeats=max(3, 64 // n), warm=warm)
         rows.append(row)
-        start = {False: "cold", "deformation": "warm"}.get(warm, "warm+factors")
+        start = "warm" if warm else "cold"
         print(
             f"{row['vectorize']:4s} {start} batch {n:5d}: compile {row['compile_s']:6.1f} s  "
             f"{row['ms_per_design']:7.2f} ms/design  {row['designs_per_s']:7.1f} designs/s  "

@@ -32,7 +32,7 @@ import numpy as np
 from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from . import _banded, _solve
+from . import _solve
 from ._assembly import build_topology, event_s
 from ._finger import Finger, FingerError, beam_name, validate_finger
 from ._rod import Integrator
@@ -196,15 +196,11 @@ def _prepare(topo, base: Finger, values):
 
 def _direct(topo, integrator, options, outputs, base: Finger, init, values):
     """Newton at full load (as `solve_finger` tries first), from the undeformed state or
-    from the base solution's deformation (shared by the batch) carried onto the design's
-    own undeformed shape; with the base solution's Jacobian factors when it has them
-    (`init`: None or (deformation, factors or None), see `_init_deformation`)."""
+    from the base solution's deformation `init` (shared by the batch) carried onto the
+    design's own undeformed shape."""
     finger, valid = _prepare(topo, base, values)
     if init is not None:
-        deformation, factors = init
-        init = _solve.start_from_deformation(topo, finger, deformation)
-        if factors is not None:
-            init = _solve.WarmStart(init, factors, jnp.asarray(True))
+        init = _solve.start_from_deformation(topo, finger, init)
     sol, ok, _ = _solve._direct_core(topo, integrator, options, finger, init)
     return _pack(sol, finger, outputs, valid), ok & valid
 
@@ -278,12 +274,9 @@ def _chunk_core(
 # --------------------------------------------------------------------------------------
 
 
-def _init_deformation(init, topo, options: SolverOptions):
+def _init_deformation(init, topo):
     """The shared start of a batch's Newton solves: the deformation init carries (a
-    Solution of the base finger: `Solution.deformation`) and the factors of its Jacobian
-    (`Solution.jacobian`, when it has them and the banded solver is used; else None), or
-    None. Every design begins with chord steps on the base's factors: on ref-A L1's
-    perturbed designs (benchmarks/batch.py) that replaces its first linearisation."""
+    Solution of the base finger: `Solution.deformation`), or None."""
     if init is None:
         return None
     if not isinstance(init, Solution):
@@ -295,10 +288,10 @@ def _init_deformation(init, topo, options: SolverOptions):
             f"init is a {init.mode} solution with {y.size} unknowns; the batch's topology is "
             f"{topo.mode} with {n}: pass a Solution of the base finger in the batch's mode"
         )
-    factors = init.jacobian if options.linear_solver == "banded" else None
-    if factors is not None and factors.lu.shape != _banded.no_factors(topo.band, y.dtype).lu.shape:
-        factors = None  # (not this topology's)
-    return jnp.asarray(init.deformation), factors
+    # (Not its Jacobian's factors, `Solution.jacobian`: chord steps on them from every
+    # design's start were slower on ref-A L1's perturbed designs, 1,065-1,077 designs/s
+    # against 1,126-1,156 (benchmarks/README.md, session 25).)
+    return jnp.asarray(init.deformation)
 
 
 def _check_values(base: Finger, values: Mapping) -> tuple[dict[str, np.ndarray], int]:
@@ -407,7 +400,7 @@ def iter_batch(
     n_dev = 1 if mesh is None else mesh.size
     fill = {k: np.asarray(v) for k, v in get_design(base_finger, list(arrays)).items()}
     continuation = dataclasses.replace(options, direct_first=False)
-    y0 = _init_deformation(init, topo, options)
+    y0 = _init_deformation(init, topo)
     diagnosis = Diagnosis(base_finger, topo.mode, topo)
     if y0 is not None and mesh is None:  # (on the chunk's device, wherever init was)
         y0 = jax.device_put(y0, target)

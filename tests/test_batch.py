@@ -13,7 +13,6 @@ import pathlib
 import subprocess
 import sys
 
-import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -176,32 +175,6 @@ def test_warm_started_batch_gives_the_same_answers_in_fewer_iterations(clean):
     # the same finger: its own unknowns back, to round-off
     again = _solve.start_from_deformation(topo, BASE, deformation)
     np.testing.assert_allclose(again, base_sol.unknowns, rtol=0, atol=1e-14)
-
-
-def test_a_warm_started_batch_begins_on_the_base_solutions_factors(clean):
-    """init= with a Solution that kept its Jacobian's factors (an eager solve_finger):
-    every design begins with chord steps on them. Same answers as the cold batch; each
-    member is solved as a single solve from that start would be."""
-    values, ref = clean
-    base_sol = fr.solve_finger(BASE, mode="planar")
-    assert base_sol.jacobian is not None
-    res = batch.solve_batch(BASE, values, OUTS, chunk_size=CHUNK, init=base_sol)
-    assert res.status.tolist() == ["converged"] * 6
-    for k in OUTS:
-        np.testing.assert_allclose(res.outputs[k], ref.outputs[k], rtol=1e-8, atol=1e-12)
-    topo = fr.topology_of(BASE, "planar")
-    for i in range(len(res.iterations)):
-        finger = design.set_design(BASE, {k: v[i] for k, v in values.items()})
-        start = _solve.start_from_deformation(topo, finger, base_sol.deformation)
-        warm = _solve.WarmStart(start, base_sol.jacobian, np.bool_(True))
-        single = _solve._direct_core(topo, fr.Integrator(), fr.SolverOptions(), finger, warm)[0]
-        assert int(single.iterations) == int(res.iterations[i])
-        plain = _solve._direct_core(topo, fr.Integrator(), fr.SolverOptions(), finger, start)[0]
-        np.testing.assert_allclose(single.unknowns, plain.unknowns, rtol=0, atol=1e-9)
-    # (the factors were used: the start from the deformation alone takes other paths)
-    plain_init = eqx.tree_at(lambda s: s.jacobian, base_sol, None, is_leaf=lambda x: x is None)
-    plain = batch.solve_batch(BASE, values, OUTS, chunk_size=CHUNK, init=plain_init)
-    assert plain.iterations.tolist() != res.iterations.tolist()
 
 
 def test_bad_arguments():
