@@ -1156,6 +1156,8 @@ def solve_finger(
         when they stop contracting tenfold a step.)
     throw: raise if the solve does not converge (use False in batches and read `result`).
     """
+    if not isinstance(keep_jacobian, bool):
+        raise ValueError(f"keep_jacobian must be True or False, got {keep_jacobian!r}")
     topo = prepare(finger, mode, topology)
     y0 = None if init is None else _carried(topo, finger, init)
     concrete = _is_concrete((finger, y0))

@@ -384,6 +384,8 @@ def test_a_warm_start_with_poor_factors_still_reaches_the_root(sol_l1, sol_l2):
 def test_jacobian_factors_are_kept_only_where_asked(sol_l1):
     finger = _replace(_ref("L1"), back=fr.Section(1.5 * 1.01, 20.0))
     assert fr.solve_finger(finger, mode="planar", keep_jacobian=False).jacobian is None
+    with pytest.raises(ValueError, match="keep_jacobian must be True or False, got 'no'"):
+        fr.solve_finger(finger, mode="planar", keep_jacobian="no")
     dense = fr.SolverOptions(linear_solver="dense")
     assert fr.solve_finger(finger, mode="planar", options=dense, init=sol_l1).jacobian is None
     # traced (jit): the full core starts from the factors and keeps none
