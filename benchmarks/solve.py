@@ -35,7 +35,7 @@ import jax
 from _common import machine, median_time, pin_to_one_core, write
 
 import finray_jax as fr
-from finray_jax import _banded, _solve
+from finray_jax import _solve
 
 
 def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.SolverOptions()):
@@ -55,9 +55,7 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
     # The warm start as `solve_finger(init=sol)` makes it: the unknowns and the factors
     # of Newton's last linearisation, which an eager solve keeps (Solution.jacobian).
     eager = _solve._direct_core(topo, integrator, opts, finger, None, keep_jacobian=True)[0]
-    use = jax.numpy.asarray(eager.jacobian is not None)
-    factors = eager.jacobian if use else _banded.no_factors(topo.band, jax.numpy.float64)
-    warm_start = _solve.WarmStart(sol.unknowns, factors, use)
+    warm_start = _solve._warm_start(topo, opts, sol.unknowns, eager, True)
     warm_sol = jax.block_until_ready(
         _solve._solve_core(topo, integrator, opts, thicker, warm_start)
     )
@@ -80,7 +78,7 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
     # beside it.
     front = eqx.tree_at(lambda f: f.front.thickness, finger, finger.front.thickness * 1.01)
     start = _solve.start_from_deformation(topo, front, sol.deformation)
-    start = _solve.WarmStart(start, factors, use)
+    start = _solve._warm_start(topo, opts, start, eager, True)
     front_sol = _solve._solve_core(topo, integrator, opts, front, start)
     warm_front, _ = median_time(
         lambda: jax.block_until_ready(_solve._solve_core(topo, integrator, opts, front, start)),

@@ -257,10 +257,18 @@ def factor(plan: BandPlan, Ap) -> BandLU:
     return BandLU(Ap, perms, sign)
 
 
+def lu_shape(plan: BandPlan) -> tuple[int, int]:
+    """The shape of `BandLU.lu` for this plan (padded, P x P)."""
+    P = _sizes(plan)[-1]
+    return (P, P)
+
+
 def no_factors(plan: BandPlan, dtype) -> BandLU:
     """Zero factors of `factor`'s shapes (a loop's initial carry; no trace of a factor)."""
-    _, steps, h, _, P = _sizes(plan)
-    return BandLU(jnp.zeros((P, P), dtype), jnp.zeros((steps, h), jnp.int32), jnp.zeros((), dtype))
+    _, steps, h, _, _ = _sizes(plan)
+    return BandLU(
+        jnp.zeros(lu_shape(plan), dtype), jnp.zeros((steps, h), jnp.int32), jnp.zeros((), dtype)
+    )
 
 
 def solve(plan: BandPlan, fac: BandLU, b):

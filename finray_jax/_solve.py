@@ -841,7 +841,7 @@ def _start(problem, init):
 _core_jit = functools.partial(jax.jit, static_argnums=(0, 1, 2))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2), static_argnames=("keep_jacobian",))
+@functools.partial(_core_jit, static_argnames=("keep_jacobian",))
 def _direct_core(
     topo,
     integrator,
@@ -1118,7 +1118,7 @@ def _warm_start(topo, options: SolverOptions, y0, init: Solution | None, concret
     if y0 is None or options.linear_solver != "banded":
         return y0
     factors = init.jacobian
-    if factors is not None and factors.lu.shape != _banded.no_factors(topo.band, y0.dtype).lu.shape:
+    if factors is not None and factors.lu.shape != _banded.lu_shape(topo.band):
         factors = None  # (another model's or resolution's factors: not of this problem)
     if factors is None:
         if not concrete:

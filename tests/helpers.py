@@ -1,5 +1,6 @@
 """Closed-form references and balance checks shared by the tests (no finray_jax internals)."""
 
+import equinox as eqx
 import numpy as np
 from scipy import optimize, special
 
@@ -160,3 +161,9 @@ def round_trip_finger(**changes):
     )
     kw.update(changes)
     return fr.Finger(**kw)
+
+
+def without_jacobian(sol):
+    """The Solution without its Jacobian factors (a warm start from it is then one from its
+    deformation alone)."""
+    return eqx.tree_at(lambda s: s.jacobian, sol, None, is_leaf=lambda x: x is None)

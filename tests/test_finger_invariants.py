@@ -15,7 +15,7 @@ import equinox as eqx
 import jax
 import numpy as np
 import pytest
-from helpers import beam_at, global_balance
+from helpers import beam_at, global_balance, without_jacobian
 
 import finray_jax as fr
 from finray_jax import _banded, _solve
@@ -328,10 +328,6 @@ def test_design_values_do_not_recompile(sol_l1, monkeypatch):
 # --------------------------------------------------------------------------------------
 
 
-def _without_jacobian(sol):
-    return eqx.tree_at(lambda s: s.jacobian, sol, None, is_leaf=lambda x: x is None)
-
-
 def _same_root(a, b, atol=1e-9):
     # rtol = atol = 1e-10 on unknowns scaled by 120 mm leaves ~1e-12 mm; compare to 1e-9
     for (name, p), (_, q) in zip(_beams(a), _beams(b)):
@@ -347,7 +343,7 @@ def test_warm_start(sol_l1):
     finger = _replace(_ref("L1"), back=fr.Section(1.5 * 1.01, 20.0))
     cold = _solve_ok(finger, mode="planar")
     # from the deformation alone: fewer Newton iterations than from the undeformed shape
-    plain = _solve_ok(finger, mode="planar", init=_without_jacobian(sol_l1))
+    plain = _solve_ok(finger, mode="planar", init=without_jacobian(sol_l1))
     assert int(plain.iterations) < int(cold.iterations), (plain.iterations, cold.iterations)
     # with sol_l1's Jacobian factors too (chord steps from the start): another path
     assert sol_l1.jacobian is not None
@@ -374,7 +370,7 @@ def test_a_warm_start_with_poor_factors_still_reaches_the_root(sol_l1, sol_l2):
     _, A = _banded.linearize(topo.band, fn, sol_l2.unknowns)
     flipped = eqx.tree_at(lambda s: s.jacobian, sol_l2, _banded.factor(topo.band, -A))
     changed = _replace(finger, back=fr.Section(1.5 * 1.01, 20.0))
-    cold = _solve_ok(changed, mode="planar", init=_without_jacobian(sol_l2))
+    cold = _solve_ok(changed, mode="planar", init=without_jacobian(sol_l2))
     wrong = _solve_ok(changed, mode="planar", init=flipped)
     _same_root(cold, wrong)
     # a wasted chord step and its rejected trial, then the plain start's path
