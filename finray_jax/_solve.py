@@ -81,17 +81,15 @@ class SolverOptions(eqx.Module):
         change faster. (Planar ref-A L1 from the undeformed shape: 2 linearisations and 4
         chord steps instead of 3 and 1, about 10 % faster; with contact 1.0 cost a
         Finger-1 grasp 2 more solves.)
-    chord_memory: with contact, chord steps after the first are Broyden steps: the
-        factored Jacobian updated by Broyden's good rule along each whole step since it
-        was factored, up to this many steps (then the plain chord step again); 0: plain
-        chord steps. None (default): 8 with objects or a support, 0 without. Only the
-        steps are stored (a step cut by the rotation cap or the line search starts the
-        memory afresh). A 1 % design change moves the whole Jacobian by about a percent,
-        which few rank-one updates learn: without contact Broyden saved at most one
-        step in six or seven (ref-A L1 and L3 warm re-solves) and its dozen small
-        products per iteration cost about as much; with contact a chord step costs far
-        more, and Broyden cut a Finger-1 grasp from 61 to 54 iterations
-        (benchmarks/README.md, session 26).
+    chord_memory: chord steps after the first are Broyden steps: the factored Jacobian
+        updated by Broyden's good rule along each whole step since it was factored, up to
+        this many steps (then the plain chord step again); 0: plain chord steps. Only the
+        steps are stored, and a step costs 2 x memory dot products more (a step cut by the
+        rotation cap or the line search starts the memory afresh). A 1 % design change
+        moves the whole Jacobian by about a percent, which no few rank-one updates learn,
+        so the gain is about one step in six: ref-A L1 / L3 warm re-solves 5 / 6 steps
+        instead of 6 / 7; a Finger-1 grasp 54 iterations instead of 61 (benchmarks/
+        README.md, session 26).
     """
 
     rtol: float = eqx.field(static=True, default=1e-10)
@@ -108,7 +106,7 @@ class SolverOptions(eqx.Module):
     linear_solver: str = eqx.field(static=True, default="banded")
     reuse_jacobian: bool = eqx.field(static=True, default=True)
     reuse_jacobian_below: float | None = eqx.field(static=True, default=None)
-    chord_memory: int | None = eqx.field(static=True, default=None)
+    chord_memory: int = eqx.field(static=True, default=8)
 
     def __check_init__(self):
         positive = ("rtol", "atol", "initial_arc_step", "min_arc_step", "max_arc_step")
@@ -145,7 +143,7 @@ class SolverOptions(eqx.Module):
                 f"got {self.linear_solver!r}"
             )
         m = self.chord_memory
-        if m is not None and not (isinstance(m, int) and not isinstance(m, bool) and m >= 0):
+        if not (isinstance(m, int) and not isinstance(m, bool) and m >= 0):
             raise ValueError(f"SolverOptions.chord_memory must be a whole number >= 0, got {m!r}")
         for name in ("max_newton_steps", "max_continuation_steps", "max_corrector_steps"):
             v = getattr(self, name)
@@ -222,27 +220,21 @@ def _broyden(dy0, steps, kept):
     each the step this rule gave), and dy0 = J0^-1 r the plain chord step.
 
     Broyden's inverse update after a full step d (y -> y - d) is H+ = (I + d+ d^T / |d|^2) H
-    with d+ = H+ r+, the next step; so w = H_n r = (I + d_n c_(n-1)^T) ... (I + d_1 c_0^T)
-    J0^-1 r with c_j = d_j / |d_j|^2, and the new step is w / (1 - c_n . w) (Kelley,
-    Iterative Methods for Linear and Nonlinear Equations, sec. 7.3). Only steps are
-    stored. The product is w = dy0 + sum_j a_j d_(j+1), where a_j = c_j . dy0 +
-    sum_(i<j) (c_j . d_(i+1)) a_i: a unit lower-triangular system, solved here by the
-    Neumann series of its strictly lower part (nilpotent), in matrix products of the
-    memory's size rather than a loop over it (a loop's iterations cost more than their
-    dot products: 5 % of a planar cold solve, in every Newton iteration)."""
+    with d+ = H+ r+, the next step; so H_n r = (I + d_n d_(n-1)^T/|d_(n-1)|^2) ...
+    (I + d_1 d_0^T/|d_0|^2) J0^-1 r, and the new step is that divided by
+    1 - d_n . w / |d_n|^2 (Kelley, Iterative Methods for Linear and Nonlinear Equations,
+    sec. 7.3). Only steps are stored: one J0 solve and 2 `kept` dot products a step."""
     m = steps.shape[0]
     sq = jnp.sum(steps * steps, axis=1)
-    c = steps / jnp.where(sq > 0.0, sq, 1.0)[:, None]
-    j = jnp.arange(m - 1)
-    on = j + 1 < kept  # the updates in use: d_j and d_(j+1) both stored
-    b = jnp.where(on, c[:-1] @ dy0, 0.0)
-    lower = jnp.where(on[:, None] & (j[:, None] > j[None, :]), c[:-1] @ steps[1:].T, 0.0)
-    inverse, power = jnp.eye(m - 1) + lower, lower  # (I - L)^-1 = I + L + L^2 + ...
-    for _ in range(max(int(np.ceil(np.log2(max(m - 1, 1)))) - 1, 0)):
-        power = power @ power
-        inverse = inverse + inverse @ power
-    w = dy0 + (inverse @ b) @ steps[1:]
-    den = 1.0 - c[jnp.maximum(kept - 1, 0)] @ w
+    safe = jnp.where(sq > 0.0, sq, 1.0)
+
+    def update(j, w):
+        on = j + 1 < kept
+        return w + jnp.where(on, steps[j + 1] * (steps[j] @ w) / safe[j], 0.0)
+
+    w = lax.fori_loop(0, m - 1, update, dy0)
+    last = jnp.maximum(kept - 1, 0)
+    den = 1.0 - (steps[last] @ w) / safe[last]
     ok = (kept > 0) & (jnp.abs(den) > 0.1)
     return jnp.where(ok, w / jnp.where(ok, den, 1.0), dy0), ok
 
@@ -344,9 +336,6 @@ def _newton_lean(
     reuse_below = options.reuse_jacobian_below
     if reuse_below is None:
         reuse_below = 0.1 if contact else 1.0
-    memory = options.chord_memory
-    if memory is None:
-        memory = 8 if contact else 0
 
     def fresh(y_t, st):
         return _linearise(at(st), lam, y_t, solver)
@@ -373,6 +362,7 @@ def _newton_lean(
         else:
             r, factors, sign = fresh(y_t, st)
         dy = _apply_inverse(problem, factors, r, solver)
+        memory = options.chord_memory
         # Broyden's update holds while every step since the factors was taken whole.
         kept = jnp.where(st.reuse & (st.a == 1.0) & (st.kept < memory), st.kept, 0)
         if memory > 0:
@@ -498,7 +488,7 @@ def _newton_lean(
         restart=jnp.asarray(False),
         outside=jnp.asarray(False),
         warm=reuse,
-        steps=jnp.zeros((memory, y0.shape[0]), y0.dtype),
+        steps=jnp.zeros((max(options.chord_memory, 1), y0.shape[0]), y0.dtype),
         kept=jnp.asarray(0),
     )
     return lax.while_loop(lambda st: ~st.done, body, init)

@@ -630,10 +630,8 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
             raise r.error(path, "expected an angle in rad, or false for no cap", v)
         elif f.name == "linear_solver":
             opts[f.name] = r.string(v, path, LINEAR_SOLVERS)
-        elif f.name == "chord_memory":  # (0: plain chord steps)
-            opts[f.name] = r.integer(v, path, minimum=0)
-        elif isinstance(f.default, int):
-            opts[f.name] = r.integer(v, path, minimum=1)
+        elif isinstance(f.default, int):  # (chord_memory 0: plain chord steps)
+            opts[f.name] = r.integer(v, path, minimum=0 if f.name == "chord_memory" else 1)
         else:
             opts[f.name] = r.number(v, path, positive=True)
     try:
@@ -1034,13 +1032,13 @@ def _settings_toml(settings: SolveSettings) -> list[str]:
         if v is None and f.name == "max_rotation_step":  # the cap switched off
             out.append(f"{f.name} = false")
             continue
-        if v is None:  # an option left to its default rule (reuse_jacobian_below, ...)
+        if v is None:  # an option left to its default rule (reuse_jacobian_below)
             continue
         if isinstance(f.default, bool):
             out.append(f"{f.name} = {'true' if v else 'false'}")
         elif isinstance(f.default, str):
             out.append(f"{f.name} = {_ts(v)}")
-        elif isinstance(f.default, int) or f.name == "chord_memory":
+        elif isinstance(f.default, int):
             out.append(f"{f.name} = {int(v)}")
         else:
             out.append(f"{f.name} = {_tf(v)}")

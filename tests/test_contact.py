@@ -288,34 +288,6 @@ def test_too_few_near_segments_is_reported():
     assert "Contact.near_segments" in f"{fr.RESULTS[sol.result]}"
 
 
-def test_broyden_chord_steps_are_the_default_with_contact():
-    """With contact, chord steps after the first are Broyden steps by default
-    (SolverOptions.chord_memory None -> 8): a cantilever pressed onto a wall, re-solved
-    from its solution at 5 % more load, reaches the plain chord steps' root
-    (chord_memory = 0) in fewer iterations."""
-    finger = _with_near(_pressed_onto_a_wall(), 16)
-    integrator = fr.Integrator(steps=16)
-    base = fr.solve_finger(finger, mode="planar", integrator=integrator)
-    pressed = finger.scale_loads(1.05)
-    runs = {
-        m: fr.solve_finger(
-            pressed,
-            mode="planar",
-            integrator=integrator,
-            init=without_jacobian(base),
-            options=fr.SolverOptions(chord_memory=m),
-        )
-        for m in (None, 0)
-    }
-    assert runs[None].converged and runs[0].converged
-    assert int(runs[None].iterations) < int(runs[0].iterations), (
-        runs[None].iterations,
-        runs[0].iterations,
-    )
-    gap = np.abs(np.asarray(runs[None].front.position) - np.asarray(runs[0].front.position))
-    assert np.max(gap) < 1e-9
-
-
 def test_a_warm_start_with_contact_begins_on_the_factors():
     """A warm start from a solution's Jacobian factors, with contact on the near segments:
     its first chord step reads the residual at the start (later ones read the residual

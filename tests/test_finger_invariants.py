@@ -490,16 +490,12 @@ def test_broyden_chord_steps_are_broydens_good_method():
 
 
 def test_broyden_chord_steps_cut_warm_re_solves(sol_l1):
-    """SolverOptions.chord_memory = 8 (the default with contact only): a warm re-solve of
-    ref-A after a 1 % change of the back beam takes fewer chord steps than plain ones
-    (the default here, chord_memory None -> 0), to the same root."""
+    """SolverOptions.chord_memory (default 8): a warm re-solve after a 1 % change of the
+    back beam takes fewer chord steps than with plain ones (chord_memory = 0), to the same
+    root."""
     finger = _replace(_ref("L1"), back=fr.Section(1.5 * 1.01, 20.0))
-    plain = _solve_ok(finger, mode="planar", init=sol_l1)
-    zero = _solve_ok(finger, mode="planar", init=sol_l1, options=fr.SolverOptions(chord_memory=0))
-    assert int(zero.iterations) == int(plain.iterations)
-    broyden = _solve_ok(
-        finger, mode="planar", init=sol_l1, options=fr.SolverOptions(chord_memory=8)
-    )
+    plain = _solve_ok(finger, mode="planar", init=sol_l1, options=fr.SolverOptions(chord_memory=0))
+    broyden = _solve_ok(finger, mode="planar", init=sol_l1)
     assert int(broyden.iterations) < int(plain.iterations), (broyden.iterations, plain.iterations)
     _same_root(plain, broyden)
 
