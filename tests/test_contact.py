@@ -307,9 +307,7 @@ def test_a_warm_start_with_contact_begins_on_the_factors():
         gap = np.abs(np.asarray(warm.front.position) - np.asarray(plain.front.position))
         assert np.max(gap) < 1e-9
         assert np.max(np.abs(np.asarray(warm.tip.position - base.tip.position))) > 1e-3
-        # The factors were used: ignored, they would leave the plain start's path, bit
-        # for bit. (The iteration counts can agree: 4 and 4 at 1.05 with Broyden steps.)
-        assert np.max(gap) > 0.0
+    assert int(warm.iterations) != int(plain.iterations)  # (the factors were used)
 
 
 @pytest.mark.slow  # (139 s: three contact topologies and a path solver compile)
