@@ -81,15 +81,6 @@ class SolverOptions(eqx.Module):
         change faster. (Planar ref-A L1 from the undeformed shape: 2 linearisations and 4
         chord steps instead of 3 and 1, about 10 % faster; with contact 1.0 cost a
         Finger-1 grasp 2 more solves.)
-    chord_memory: chord steps after the first are Broyden steps: the factored Jacobian
-        updated by Broyden's good rule along each whole step since it was factored, up to
-        this many steps (then the plain chord step again); 0: plain chord steps. Only the
-        steps are stored, and a step costs 2 x memory dot products more (a step cut by the
-        rotation cap or the line search starts the memory afresh). A 1 % design change
-        moves the whole Jacobian by about a percent, which no few rank-one updates learn,
-        so the gain is about one step in six: ref-A L1 / L3 warm re-solves 5 / 6 steps
-        instead of 6 / 7; a Finger-1 grasp 54 iterations instead of 61 (benchmarks/
-        README.md, session 26).
     """
 
     rtol: float = eqx.field(static=True, default=1e-10)
@@ -106,7 +97,6 @@ class SolverOptions(eqx.Module):
     linear_solver: str = eqx.field(static=True, default="banded")
     reuse_jacobian: bool = eqx.field(static=True, default=True)
     reuse_jacobian_below: float | None = eqx.field(static=True, default=None)
-    chord_memory: int = eqx.field(static=True, default=8)
 
     def __check_init__(self):
         positive = ("rtol", "atol", "initial_arc_step", "min_arc_step", "max_arc_step")
@@ -142,9 +132,6 @@ class SolverOptions(eqx.Module):
                 f"SolverOptions.linear_solver must be one of {LINEAR_SOLVERS}, "
                 f"got {self.linear_solver!r}"
             )
-        m = self.chord_memory
-        if not (isinstance(m, int) and not isinstance(m, bool) and m >= 0):
-            raise ValueError(f"SolverOptions.chord_memory must be a whole number >= 0, got {m!r}")
         for name in ("max_newton_steps", "max_continuation_steps", "max_corrector_steps"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
@@ -181,9 +168,6 @@ class _Newton(eqx.Module):
     restart: jax.Array  # the next iteration starts a round (a new choice)
     outside: jax.Array  # contact found outside the near segments with no rounds left
     warm: jax.Array  # Newton began with chord steps on a warm start's factors
-    # Broyden's memory of the chord steps since the last linearisation (`_broyden`):
-    steps: jax.Array  # (chord_memory, n) the steps dy taken, oldest first
-    kept: jax.Array  # how many of them are in use (0: the next chord step is plain)
 
 
 def _linearise(problem, lam, y, linear_solver):
@@ -212,31 +196,6 @@ def _newton_step(problem, lam, y, linear_solver):
     """The Newton step J^-1 r at y, the residual r and the sign of det J."""
     r, factors, sign = _linearise(problem, lam, y, linear_solver)
     return _apply_inverse(problem, factors, r, linear_solver), r, sign
-
-
-def _broyden(dy0, steps, kept):
-    """The chord step H r, where H is J0^-1 updated by Broyden's good rule for each of the
-    last `kept` full steps `steps[:kept]` (taken from the point where J0 was factored,
-    each the step this rule gave), and dy0 = J0^-1 r the plain chord step.
-
-    Broyden's inverse update after a full step d (y -> y - d) is H+ = (I + d+ d^T / |d|^2) H
-    with d+ = H+ r+, the next step; so H_n r = (I + d_n d_(n-1)^T/|d_(n-1)|^2) ...
-    (I + d_1 d_0^T/|d_0|^2) J0^-1 r, and the new step is that divided by
-    1 - d_n . w / |d_n|^2 (Kelley, Iterative Methods for Linear and Nonlinear Equations,
-    sec. 7.3). Only steps are stored: one J0 solve and 2 `kept` dot products a step."""
-    m = steps.shape[0]
-    sq = jnp.sum(steps * steps, axis=1)
-    safe = jnp.where(sq > 0.0, sq, 1.0)
-
-    def update(j, w):
-        on = j + 1 < kept
-        return w + jnp.where(on, steps[j + 1] * (steps[j] @ w) / safe[j], 0.0)
-
-    w = lax.fori_loop(0, m - 1, update, dy0)
-    last = jnp.maximum(kept - 1, 0)
-    den = 1.0 - (steps[last] @ w) / safe[last]
-    ok = (kept > 0) & (jnp.abs(den) > 0.1)
-    return jnp.where(ok, w / jnp.where(ok, den, 1.0), dy0), ok
 
 
 def _cap_rotation(problem, dy, cap):
@@ -362,12 +321,6 @@ def _newton_lean(
         else:
             r, factors, sign = fresh(y_t, st)
         dy = _apply_inverse(problem, factors, r, solver)
-        memory = options.chord_memory
-        # Broyden's update holds while every step since the factors was taken whole.
-        kept = jnp.where(st.reuse & (st.a == 1.0) & (st.kept < memory), st.kept, 0)
-        if memory > 0:
-            dy, updated = _broyden(dy, st.steps, kept)
-            kept = jnp.where(updated, kept, 0)
         norm = jnp.sum(r * r)
         # Newton's own correction (before any line search or cap) in units of the
         # tolerance, norm-wise: below a tenth, y_t is the root to within round-off, even
@@ -384,14 +337,11 @@ def _newton_lean(
         retry = jnp.asarray(False) if contact else st.reuse & ~decreased
         accept = start | contact | decreased
         accept = accept | ((st.a < 0.5**max_halvings) & ~retry)
-        whole = dy
         if options.max_rotation_step is not None:
             dy = _cap_rotation(problem, dy, options.max_rotation_step)
         r_next = st.r_next
         if contact:  # (after the cap: r_next is the residual where the step ends)
             dy, r_next = _backtrack(at(st), lam, y_t, dy, r, max_halvings)
-        # A step cut by the cap or the line search starts Broyden's memory afresh.
-        cut = jnp.any(dy != whole)
         y = y_t - dy
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))
@@ -447,10 +397,6 @@ def _newton_lean(
             restart=again,
             outside=outside,
             warm=st.warm,
-            steps=st.steps
-            if memory == 0
-            else jnp.where(accept, st.steps.at[jnp.minimum(kept, memory - 1)].set(dy), st.steps),
-            kept=jnp.where(accept, jnp.where(cut, 0, kept + 1), st.kept),
         )
 
     # (the factors' shapes do not depend on `order`)
@@ -488,8 +434,6 @@ def _newton_lean(
         restart=jnp.asarray(False),
         outside=jnp.asarray(False),
         warm=reuse,
-        steps=jnp.zeros((max(options.chord_memory, 1), y0.shape[0]), y0.dtype),
-        kept=jnp.asarray(0),
     )
     return lax.while_loop(lambda st: ~st.done, body, init)
 

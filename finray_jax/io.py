@@ -630,8 +630,8 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
             raise r.error(path, "expected an angle in rad, or false for no cap", v)
         elif f.name == "linear_solver":
             opts[f.name] = r.string(v, path, LINEAR_SOLVERS)
-        elif isinstance(f.default, int):  # (chord_memory 0: plain chord steps)
-            opts[f.name] = r.integer(v, path, minimum=0 if f.name == "chord_memory" else 1)
+        elif isinstance(f.default, int):
+            opts[f.name] = r.integer(v, path, minimum=1)
         else:
             opts[f.name] = r.number(v, path, positive=True)
     try:

@@ -450,64 +450,6 @@ def test_a_start_at_the_root_is_confirmed_when_the_residual_floor_exceeds_atol(s
     )
 
 
-def test_broyden_chord_steps_are_broydens_good_method():
-    """`_solve._broyden` (the stored steps alone) against Broyden's good method with the
-    matrix B updated explicitly, B+ = B + (dr - B s) s^T / s^T s, on a linear residual
-    r = A y - c started with B0 = the diagonal of A: the same steps to round-off, and the
-    root in 2 n steps (Gay's theorem for linear systems), where chord steps on B0 are
-    still 1e-3 away."""
-    rng = np.random.default_rng(3)
-    n, memory = 5, 12
-    A = np.eye(n) + 0.3 * rng.standard_normal((n, n))
-    c = rng.standard_normal(n)
-    B0 = np.diag(np.diag(A))
-    root = np.linalg.solve(A, c)
-    residual = lambda y: A @ y - c
-
-    y, B = np.zeros(n), B0.copy()
-    reference = []
-    for _ in range(2 * n):
-        r = residual(y)
-        d = np.linalg.solve(B, r)  # y -> y - d
-        reference.append(d)
-        y_new = y - d
-        s, dr = -d, residual(y_new) - r
-        B = B + np.outer(dr - B @ s, s) / (s @ s)
-        y = y_new
-    assert np.max(np.abs(y - root)) < 1e-10
-
-    steps, kept, y, chord = np.zeros((memory, n)), 0, np.zeros(n), np.zeros(n)
-    for k in range(2 * n):
-        dy0 = np.linalg.solve(B0, residual(y))
-        d, ok = _solve._broyden(jax.numpy.asarray(dy0), jax.numpy.asarray(steps), kept)
-        d = np.asarray(d)
-        assert bool(ok) == (k > 0)
-        np.testing.assert_allclose(d, reference[k], rtol=1e-9, atol=1e-12)
-        steps[kept], kept, y = d, kept + 1, y - d
-        chord = chord - np.linalg.solve(B0, residual(chord))
-    assert np.max(np.abs(y - root)) < 1e-10
-    assert np.max(np.abs(chord - root)) > 1e-3
-
-
-def test_broyden_chord_steps_cut_warm_re_solves(sol_l1):
-    """SolverOptions.chord_memory (default 8): a warm re-solve after a 1 % change of the
-    back beam takes fewer chord steps than with plain ones (chord_memory = 0), to the same
-    root."""
-    finger = _replace(_ref("L1"), back=fr.Section(1.5 * 1.01, 20.0))
-    plain = _solve_ok(finger, mode="planar", init=sol_l1, options=fr.SolverOptions(chord_memory=0))
-    broyden = _solve_ok(finger, mode="planar", init=sol_l1)
-    assert int(broyden.iterations) < int(plain.iterations), (broyden.iterations, plain.iterations)
-    _same_root(plain, broyden)
-
-
-@pytest.mark.parametrize("bad", [-1, 1.5, True, "8"])
-def test_bad_chord_memory_is_named(bad):
-    with pytest.raises(
-        ValueError, match=f"SolverOptions.chord_memory must be a whole number >= 0, got {bad!r}"
-    ):
-        fr.SolverOptions(chord_memory=bad)
-
-
 # (L3, 34 s of compiling, is slow: L1 and L2 cover the chord steps in the default suite)
 @pytest.mark.parametrize("case", ["L1", "L2", pytest.param("L3", marks=pytest.mark.slow)])
 def test_chord_steps_reach_the_same_root_as_newton(case):

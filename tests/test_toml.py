@@ -488,14 +488,6 @@ def test_solver_settings():
     assert s.solve_kwargs()["mode"] == "spatial"
 
 
-def test_chord_memory_reads_zero_and_refuses_negatives():
-    d = doc()
-    d["solver"] = {"chord_memory": 0}
-    assert load(d)[1].options.chord_memory == 0
-    d["solver"] = {"chord_memory": -2}
-    assert_error(d, "solver.chord_memory = -2", ">= 0")
-
-
 def test_bad_solver_mode():
     d = doc()
     d["solver"] = {"mode": "3d"}
