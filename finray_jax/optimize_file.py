@@ -154,7 +154,12 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
     gs = settings.grasp
     kw = {}
     kw["objective"] = r.string(doc.get("objective", "contact_force"), "objective", OBJECTIVES)
-    kw["friction"] = r.number(doc.get("friction", 0.0), "friction", nonnegative=True)
+    # The release's friction: this file's, else the finger file's [contact] friction (as
+    # `finray grasp --release` and grasp sweeps use it).
+    friction = doc.get("friction", None)
+    if friction is None:
+        friction = float(finger.contact.friction) if kw["objective"] == "holding_force" else 0.0
+    kw["friction"] = r.number(friction, "friction", nonnegative=True)
     if kw["friction"] > 0 and kw["objective"] != "holding_force":
         raise r.error(
             "friction",

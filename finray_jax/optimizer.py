@@ -148,8 +148,9 @@ def _peak_pull(problem: OptimizeProblem, g: GraspSolution, i: int, say):
     )
     if tr.peak <= 0:
         raise OptimizeError(
-            f"{problem.source}: object {i} is not held at the initial design (release trace: "
-            f"{tr.message}); holding_force needs a positive peak"
+            f"{problem.source}: object {i} is not held at the initial design (release trace "
+            f"with friction = {problem.friction:g}: {tr.message}); holding_force needs a "
+            "positive peak"
         )
     finger = _pull_finger(problem, g.finger)
     e = np.asarray(problem.pull_direction, float)
@@ -627,7 +628,8 @@ def run_optimize(
                 "values": np.asarray(aux["values"]).tolist(),
                 "margins": margins,
             }
-            fio._write_atomic(best_path, _best_toml(problem, x, k, objective, anchors))
+            for i, text in enumerate(_best_tomls(problem, x, k, objective, anchors)):
+                fio._write_atomic(_best_path(best_path, i), text)
         still = feasible and _unchanged(problem, objective, state["last"])
         state["stall"] = state["stall"] + 1 if still else 0
         state["last"] = objective
@@ -684,20 +686,19 @@ def run_optimize(
     return run
 
 
-def _best_toml(problem: OptimizeProblem, x, iteration: int, objective: float, anchors) -> str:
+def _best_path(best_path: str, i: int) -> str:
+    """best.toml for the first object, best_object<i>.toml for object i of several."""
+    return best_path if i == 0 else best_path.replace(".toml", f"_object{i}.toml")
+
+
+def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, anchors):
+    """The best design as finger files, one per object: each holds that object (placed as
+    the optimiser placed it) and, for the holding force, the release's friction."""
     k = ", ".join(f"{float(v)!r}" for v in np.asarray(anchors.stiffness))
-    head = [
-        f"# Best feasible design of {os.path.basename(problem.source)} (finray optimize), "
-        f"iteration {iteration}:",
-        f"# {problem.objective} = {objective!r} N ({problem.aggregate} over "
-        f"{1 if problem.diameters is None else len(problem.diameters)} object(s)).",
-        "# " + ", ".join(f"{n} = {v!r}" for n, v in zip(problem.names, np.asarray(x).tolist())),
-        f"# That figure holds the contact penalty stiffness of the initial design fixed (k = "
-        f"{k} N/mm^2, per object);",
-        "# `finray grasp` chooses k for this design anew, so its force can differ slightly",
-        "# ([contact] stiffness = k reproduces the figure).",
-    ]
-    text = fio.finger_to_toml(problem.designed(x), problem.settings)
+    n_obj = 1 if problem.diameters is None else len(problem.diameters)
+    designed = problem.designed(x)
+    if problem.objective == "holding_force":
+        designed = _with_contact(designed, friction=problem.friction)
     w = problem.direction
     grasp_lines = [
         "",
@@ -707,7 +708,28 @@ def _best_toml(problem: OptimizeProblem, x, iteration: int, objective: float, an
         f"symmetric = {'true' if problem.symmetric else 'false'}",
         f"pull_step = {problem.pull_step!r}",
     ]
-    return "\n".join(head) + "\n" + text + "\n".join(grasp_lines) + "\n"
+    texts = []
+    for i, base in enumerate(problem.object_fingers()):
+        finger = eqx.tree_at(lambda f: (f.loads, f.objects), designed, (base.loads, base.objects))
+        which = "" if problem.diameters is None else f" (object {i}: {problem.diameters[i]:g} mm)"
+        names = [os.path.basename(_best_path(BEST_TOML, j)) for j in range(n_obj) if j != i]
+        others = f"# The other objects' files: {', '.join(names)}." if names else None
+        head = [
+            f"# Best feasible design of {os.path.basename(problem.source)} (finray optimize), "
+            f"iteration {iteration}{which}:",
+            f"# {problem.objective} = {objective!r} N "
+            f"({problem.aggregate} over {n_obj} object(s)).",
+            "# " + ", ".join(f"{n} = {v!r}" for n, v in zip(problem.names, np.asarray(x).tolist())),
+            f"# That figure holds the contact penalty stiffness of the initial design fixed (k = "
+            f"{k} N/mm^2, per object);",
+            "# `finray grasp` chooses k for this design anew, so its force can differ slightly",
+            "# ([contact] stiffness = k reproduces the figure).",
+        ]
+        if others:
+            head.append(others)
+        text = fio.finger_to_toml(finger, problem.settings)
+        texts.append("\n".join(head) + "\n" + text + "\n".join(grasp_lines) + "\n")
+    return texts
 
 
 def _write_result(problem: OptimizeProblem, run: OptimizeRun, out_dir: str, wall: float):

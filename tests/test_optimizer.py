@@ -13,6 +13,7 @@ import csv
 import dataclasses
 import json
 import os
+import types
 
 import equinox as eqx
 import jax
@@ -290,6 +291,41 @@ def test_objects_behind_the_finger_are_refused_when_the_file_is_read(tmp_path):
 # ---------------------------------------------------------------------------------------
 # Bounds and constraints without a solve
 # ---------------------------------------------------------------------------------------
+
+
+def test_holding_force_friction_defaults_to_the_finger_files(tmp_path):
+    finger_50 = os.path.abspath(os.path.join(EXAMPLES, "grasp_finger1_modified_50mm.toml"))
+    f_file = float(fio.load_finger(finger_50)[0].contact.friction)
+    assert f_file > 0
+    text = CLAMP.format(finger=finger_50, strain=10.0, pressure=100.0, iterations=2)
+    held = _load('objective = "holding_force"\n' + text, tmp_path)
+    assert held.friction == f_file
+    assert _load('objective = "holding_force"\nfriction = 0.0\n' + text, tmp_path).friction == 0
+    assert _load(text, tmp_path).friction == 0  # the closing's contact force: frictionless
+
+
+def test_best_design_files_hold_each_optimised_object_and_the_friction(tmp_path):
+    """best.toml (and best_object<i>.toml for more objects) are finger files with the
+    design values, the object as the optimiser placed it and the release's friction."""
+    text = CLAMP.format(finger=FINGER, strain=10.0, pressure=100.0, iterations=2)
+    extra = 'objective = "holding_force"\nfriction = 0.4\n[objects]\ndiameters = [20.0, 35.0]\n'
+    text = text.replace("[[design]]", extra + "[[design]]", 1)
+    p = _load(text, tmp_path)
+    x = np.array([18.0, 50.0])
+    anchors = types.SimpleNamespace(stiffness=np.array([3.0, 4.0]))
+    texts = O._best_tomls(p, x, 3, 1.25, anchors)
+    assert len(texts) == 2
+    assert O._best_path("d/best.toml", 1) == "d/best_object1.toml"
+    for text, want, base in zip(texts, p.diameters, p.object_fingers(), strict=True):
+        finger, _ = fio.loads_finger(text)
+        assert finger.n_crossbeams == p.finger.n_crossbeams
+        assert float(finger.adaptor.back_clamp_length) == 18.0
+        assert float(finger.adaptor.support_length) == 50.0
+        assert float(finger.contact.friction) == 0.4
+        (obj,) = finger.objects
+        assert float(obj.radius) == pytest.approx(0.5 * want, rel=1e-15)
+        np.testing.assert_allclose(obj.center, base.objects[0].center, rtol=1e-15)
+    assert "best_object1.toml" in texts[0] and "best.toml" in texts[1]
 
 
 def test_reparameterisation_keeps_every_value_inside_its_bounds():
