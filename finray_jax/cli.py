@@ -84,9 +84,24 @@ class UserError(Exception):
     """A mistake in the command line or its inputs: reported in one line, exit code 1."""
 
 
+def _say_interrupted(csv_path: str, what: str) -> None:
+    """The interrupt's one line: how many finished rows the CSV keeps (none: nothing to
+    continue from, a re-run starts afresh)."""
+    try:
+        with open(csv_path, encoding="utf-8") as fh:
+            rows = max(sum(1 for line in fh if line.strip()) - 1, 0)
+    except OSError:
+        rows = 0
+    if rows:
+        kept = f"{rows} finished {what} are in {csv_path}: run the same command to continue"
+    else:
+        kept = f"no {what} had finished (nothing written yet): the same command starts afresh"
+    print(f"finray: interrupted; {kept}", file=sys.stderr)
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):
-        raise UserError(f"{message}\n{self.format_usage().strip()}")
+        raise UserError(f"{message} (see {self.prog} --help)")
 
 
 # --------------------------------------------------------------------------------------
@@ -648,11 +663,7 @@ def _cmd_sweep(args) -> int:
     try:
         run = fsweep.run_sweep(sw, args.out, max_chunks=args.max_chunks, progress=sys.stderr)
     except KeyboardInterrupt:
-        print(
-            f"finray: interrupted; finished chunks are in {args.out}: run the same command "
-            "to continue",
-            file=sys.stderr,
-        )
+        _say_interrupted(os.path.join(args.out, fsweep.RESULTS_CSV), "designs")
         return EXIT_INTERRUPTED
     counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))
     print(f"wrote {run.csv} ({run.done} of {run.total} designs: {counts or 'none yet'})")
@@ -705,11 +716,7 @@ def _cmd_optimize(args) -> int:
             pr, args.out, max_iterations=args.max_iterations, progress=sys.stderr
         )
     except KeyboardInterrupt:
-        print(
-            f"finray: interrupted; finished iterations are in {args.out}: run the same command "
-            "to continue",
-            file=sys.stderr,
-        )
+        _say_interrupted(os.path.join(args.out, fopt.PROGRESS_CSV), "iterations")
         return EXIT_INTERRUPTED
     print(f"{run.reason}; {run.rows} iterations in {run.csv}")
     if run.best is None:

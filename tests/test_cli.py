@@ -290,6 +290,7 @@ def test_usage_errors(argv, capsys):
     err = capsys.readouterr().err
     assert code == 1
     assert err.startswith("finray: error: ")
+    assert len(err.strip().splitlines()) == 1  # (argparse's usage text left out)
     assert "Traceback" not in err
 
 

@@ -571,3 +571,28 @@ def test_grasp_outputs_need_a_grasp_file(sweep_file, output):
     sweep_file.write_text(GRID.replace('"max_strain"', f'"{output}"'))
     with pytest.raises(fsweep.SweepError, match=r"outputs\[2\].*needs objects and a \[grasp\]"):
         fsweep.load_sweep(sweep_file)
+
+
+def test_ctrl_c_line_says_how_many_designs_are_kept(sweep_file, tmp_path, monkeypatch):
+    """Interrupted before any chunk finished, the line says nothing is kept; after some
+    did, it gives their count and says how to continue."""
+    out = tmp_path / "out"
+
+    def interrupted(sw, out_dir, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fsweep, "run_sweep", interrupted)
+    code, _, err = run(["sweep", str(sweep_file), "--out", str(out)])
+    assert code == 130
+    assert err.strip().splitlines()[-1] == (
+        "finray: interrupted; no designs had finished (nothing written yet): "
+        "the same command starts afresh"
+    )
+    out.mkdir()
+    (out / fsweep.RESULTS_CSV).write_text("index,status\n0,converged\n1,converged\n")
+    code, _, err = run(["sweep", str(sweep_file), "--out", str(out)])
+    assert code == 130
+    assert err.strip().splitlines()[-1] == (
+        f"finray: interrupted; 2 finished designs are in {out / fsweep.RESULTS_CSV}: "
+        "run the same command to continue"
+    )
