@@ -596,3 +596,11 @@ def test_ctrl_c_line_says_how_many_designs_are_kept(sweep_file, tmp_path, monkey
         f"finray: interrupted; 2 finished designs are in {out / fsweep.RESULTS_CSV}: "
         "run the same command to continue"
     )
+
+
+def test_every_design_value_is_documented():
+    from finray_jax.design import DESIGN_VALUES
+
+    text = (ROOT / "docs" / "sweep-format.md").read_text()
+    for name, dv in DESIGN_VALUES.items():
+        assert f"`{name}[i]`" in text if dv.per_crossbeam else f"`{name}`" in text, name
