@@ -484,6 +484,13 @@ def _cmd_solve(args) -> int:
     finger, settings = fio.load_finger(args.finger)
     if args.load_scale is not None:
         finger = finger.scale_loads(args.load_scale)
+    if settings.grasp is not None and finger.objects and not finger.loads:
+        print(
+            f"finray: note: {args.finger} describes a grasp; `finray solve` solves its "
+            "loads alone (it has none) with the objects where they stand: "
+            f"`finray grasp {args.finger}` closes the finger on them",
+            file=sys.stderr,
+        )
     sol, elapsed = _solve(finger, settings, args.mode)
     print(_summary(sol, finger, settings, args.finger, elapsed))
     check = _check_resolution(finger, settings, sol, rtol)
@@ -797,7 +804,8 @@ def _grasp_lines(g, name="") -> list[str]:
     return [
         f"{head}{g.status} at closing {float(g.closing):.4g} mm "
         f"(penalty stiffness {float(g.stiffness):.4g} N/mm^2)",
-        f"  contact force     {_f(c.normal_force)} N  (x {_f(c.force[0])}, z {_f(c.force[2])})",
+        f"  contact force     {_f(c.normal_force)} N normal resultant; total force x "
+        f"{_f(c.force[0])}, z {_f(c.force[2])} N",
         f"  contact length    {_f(c.contact_length)} mm, max penetration "
         f"{_f(c.max_penetration)} mm",
         f"  crossbeam force   x {_f(c.crossbeam_force[0])}, z {_f(c.crossbeam_force[2])} N "

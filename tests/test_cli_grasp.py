@@ -25,6 +25,14 @@ def test_grasp_command_writes_contact_outputs(tmp_path):
     assert png.stat().st_size > 10_000
 
 
+def test_solve_on_a_grasp_file_points_at_finray_grasp(tmp_path):
+    code, stdout, err = run(["solve", GRASP])
+    assert code == 0, err
+    assert f"`finray grasp {GRASP}` closes the finger" in err
+    code, _, err = run(["solve", str(ROOT / "examples" / "ref_a.toml")])
+    assert code == 0 and "finray grasp" not in err
+
+
 def test_grasp_file_errors_name_the_key(tmp_path):
     text = pathlib.Path(GRASP).read_text()
     bad = tmp_path / "bad.toml"
