@@ -838,7 +838,8 @@ def _read_run_record(path, out_dir, error, *, what, run, digest, hash_key, sourc
     if record.get(hash_key) != digest:
         raise error(
             f"{out_dir} holds another {run} (from {record.get(source_key, '?')}, hash "
-            f"{str(record.get(hash_key))[:12]}; this one's hash is {digest[:12]}): use another "
+            f"{str(record.get(hash_key))[:12]}; this one's hash is {digest[:12]}; the hash "
+            f"covers the {run} file and its finger file, so one of them differs): use another "
             "--out directory, or delete that one to start again"
         )
     return record
