@@ -128,6 +128,9 @@ class GraspSettings:
 # --------------------------------------------------------------------------------------
 
 
+MAX_STEPS = 10_000  # solver.steps: more is a typo (memory and compile time grow with it)
+
+
 def _show(v) -> str:
     """A value as the user wrote it in TOML."""
     if isinstance(v, bool):
@@ -241,7 +244,10 @@ class _Reader:
     def number(self, value, path: str, *, positive=False, nonnegative=False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(path, f"expected a number, got {_type_name(value)}", value)
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond the float range
+            x = math.inf
         if not math.isfinite(x):
             raise self.error(path, "must be a finite number", value)
         if positive and x <= 0:
@@ -250,11 +256,13 @@ class _Reader:
             raise self.error(path, "must not be negative", value)
         return x
 
-    def integer(self, value, path: str, *, minimum=None) -> int:
+    def integer(self, value, path: str, *, minimum=None, maximum=None, why="") -> int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(path, f"expected an integer, got {_type_name(value)}", value)
         if minimum is not None and value < minimum:
             raise self.error(path, f"must be an integer >= {minimum}", value)
+        if maximum is not None and value > maximum:
+            raise self.error(path, f"must be an integer <= {maximum}{why}", value)
         return value
 
     def boolean(self, value, path: str) -> bool:
@@ -614,7 +622,13 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
             r.string(raw, "solver.integrator", tuple(INTEGRATORS))  # raises with a suggestion
         integ["solver"] = INTEGRATORS[by_lower[raw.lower()]](scan_kind="lax")
     if "steps" in tbl:
-        integ["steps"] = r.integer(tbl["steps"], "solver.steps", minimum=1)
+        integ["steps"] = r.integer(
+            tbl["steps"],
+            "solver.steps",
+            minimum=1,
+            maximum=MAX_STEPS,
+            why=" (fixed steps per segment)",
+        )
     if "backend" in tbl:
         integ["backend"] = r.string(tbl["backend"], "solver.backend")
     opts = {}
@@ -631,7 +645,7 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
         elif f.name == "linear_solver":
             opts[f.name] = r.string(v, path, LINEAR_SOLVERS)
         elif isinstance(f.default, int):
-            opts[f.name] = r.integer(v, path, minimum=1)
+            opts[f.name] = r.integer(v, path, minimum=1, maximum=1_000_000)
         else:
             opts[f.name] = r.number(v, path, positive=True)
     try:

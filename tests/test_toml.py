@@ -512,6 +512,20 @@ def test_bad_steps():
     assert_error(d, "solver.steps = 0", ">= 1")
 
 
+def test_absurd_step_and_iteration_counts():
+    d = doc()
+    d["solver"] = {"steps": 10**20}
+    assert_error(d, f"solver.steps = {10**20}", "<= 10000")
+    d["solver"] = {"max_newton_steps": 10**12}
+    assert_error(d, f"solver.max_newton_steps = {10**12}", "<= 1000000")
+
+
+def test_integer_beyond_the_float_range():
+    d = doc()
+    d["material"]["E"] = 10**400
+    assert_error(d, "material.E = 1000", "finite")
+
+
 def test_bad_tolerance():
     d = doc()
     d["solver"] = {"rtol": -1e-8}
