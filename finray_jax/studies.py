@@ -195,6 +195,8 @@ def _read_record(path, digest, kind, say):
             rec = json.load(fh)
         if not isinstance(rec, dict):
             raise ValueError("not a JSON object")
+        if "study_hash" not in rec:
+            raise ValueError("a JSON object without a study_hash")
     except (OSError, ValueError) as exc:
         raise StudyRecordError(
             f"{path}: not a {kind} record ({exc}); move it away to start afresh"

@@ -74,6 +74,10 @@ def test_a_clamp_study_record_that_is_not_one_is_refused_by_name(tmp_path):
     code, _, err = run(["clamp-study", "--out", str(tmp_path)])
     assert code == 1 and "not a clamp-study record" in err and "Traceback" not in err
     assert record.read_text() == "not json"  # left as it was
+    record.write_text('{"x": 1}\n')  # JSON, but no study's record
+    with pytest.raises(studies.StudyRecordError, match="without a study_hash"):
+        studies.clamp_study(_finger(), **SETTINGS, record=record)
+    assert record.read_text() == '{"x": 1}\n'
 
 
 def test_finger_digest_follows_every_value():
