@@ -551,6 +551,7 @@ def _cmd_limit(args) -> int:
             f"no limit load found: continuation stopped at load factor {_f(factor, 6)} "
             f"without a fold ({elapsed:.1f} s). {fr.RESULTS[lim.solution.result]}"
         )
+    where = "at the limit" if found else "where the continuation stopped"
     for j, load in enumerate(finger.loads):
         if isinstance(load, fr.PointLoad):
             F = np.asarray(load.force) * factor
@@ -560,10 +561,7 @@ def _cmd_limit(args) -> int:
             s0, s1 = np.asarray(load.s_range)
             what = f"distributed load over s = {_f(s0)}..{_f(s1)} mm, total"
         beam = {0: "front", 1: "back"}.get(load.beam, f"crossbeam {load.beam - 2}")
-        print(
-            f"  loads[{j}] ({beam} beam, {what}) at the limit: "
-            f"({_f(F[0])}, {_f(F[1])}, {_f(F[2])}) N"
-        )
+        print(f"  loads[{j}] ({beam} beam, {what}) {where}: ({_f(F[0])}, {_f(F[1])}, {_f(F[2])}) N")
     sol = lim.solution
     d = np.asarray(sol.tip.displacement, dtype=np.float64)
     print(

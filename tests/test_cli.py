@@ -403,3 +403,19 @@ def test_limit_ref_a(tmp_path):
     assert {"tip", "reactions"} <= set(data["equilibrium_at_limit"])
     assert data["solution"]["status"] == "converged"
     assert "limit load factor" in out
+
+
+def test_limit_without_a_fold_says_where_it_stopped(tmp_path):
+    """A tip pulled up along the finger stiffens it: no fold, exit 3, and the loads are
+    reported where the continuation stopped, not 'at the limit'."""
+    text = (ROOT / "examples" / "ref_a.toml").read_text()
+    old = "s = 60.0                  # mm\nforce = [0.05, 0.0, 0.0]"
+    assert old in text
+    path = tmp_path / "tension.toml"
+    path.write_text(text.replace(old, "s = 120.0\nforce = [0.0, 0.0, 1.0]"))
+    out = tmp_path / "limit.json"
+    code, stdout, err = run(["limit", str(path), "--out", str(out)])
+    assert code == 3, err
+    assert "no limit load found" in stdout and "where the continuation stopped" in stdout
+    assert "at the limit" not in stdout
+    assert json.loads(out.read_text())["found"] is False
