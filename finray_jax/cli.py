@@ -428,12 +428,23 @@ def _crossbeam_table(sol, finger) -> list[str]:
 # --------------------------------------------------------------------------------------
 
 
-def _solve(finger, settings, mode):
+def _in_file(source: str, e: Exception) -> UserError:
+    """A finger error found at solve time, prefixed by its file as the file's own are."""
+    text = str(e)
+    return UserError(text if text.startswith(f"{source}:") else f"{source}: {text}")
+
+
+def _solve(finger, settings, mode, source=None):
     kwargs = settings.solve_kwargs()
     if mode is not None:
         kwargs["mode"] = mode
     t0 = time.perf_counter()
-    sol = fr.solve_finger(finger, **kwargs)
+    try:
+        sol = fr.solve_finger(finger, **kwargs)
+    except fr.FingerError as e:
+        if source is None:
+            raise
+        raise _in_file(source, e) from None
     sol.max_residual.block_until_ready()
     return sol, time.perf_counter() - t0
 
@@ -491,7 +502,7 @@ def _cmd_solve(args) -> int:
             f"`finray grasp {args.finger}` closes the finger on them",
             file=sys.stderr,
         )
-    sol, elapsed = _solve(finger, settings, args.mode)
+    sol, elapsed = _solve(finger, settings, args.mode, source=args.finger)
     print(_summary(sol, finger, settings, args.finger, elapsed))
     check = _check_resolution(finger, settings, sol, rtol)
     if args.out:
@@ -538,7 +549,10 @@ def _cmd_limit(args) -> int:
     if args.mode is not None:
         kwargs["mode"] = args.mode
     t0 = time.perf_counter()
-    lim = fr.limit_load(finger, **kwargs)
+    try:
+        lim = fr.limit_load(finger, **kwargs)
+    except fr.FingerError as e:
+        raise _in_file(args.finger, e) from None
     factor = float(lim.load_factor)
     elapsed = time.perf_counter() - t0
     found = bool(lim.found)

@@ -419,3 +419,14 @@ def test_limit_without_a_fold_says_where_it_stopped(tmp_path):
     assert "no limit load found" in stdout and "where the continuation stopped" in stdout
     assert "at the limit" not in stdout
     assert json.loads(out.read_text())["found"] is False
+
+
+def test_mode_planar_with_an_out_of_plane_load_names_the_file(tmp_path):
+    text = (ROOT / "examples" / "ref_a.toml").read_text()
+    path = tmp_path / "fy.toml"
+    path.write_text(text.replace("force = [0.05, 0.0, 0.0]", "force = [0.05, 0.01, 0.0]"))
+    for command in ("solve", "limit"):
+        code, _, err = run([command, str(path), "--mode", "planar"])
+        assert code == 1
+        assert err.startswith(f"finray: error: {path}: loads[0].force = [0.05, 0.01, 0.0]: ")
+        assert "out of the x-z plane" in err and "Traceback" not in err
