@@ -292,9 +292,21 @@ def _parser() -> argparse.ArgumentParser:
         "DIR/compare.json and DIR/compare_record.json, which keeps every finished release "
         "trace, so an interrupted comparison, run again, continues.",
     )
-    cmp_.add_argument("--out", metavar="DIR", default=".")
-    cmp_.add_argument("--closing", type=_positive_float, default=6.0, metavar="MM")
-    cmp_.add_argument("--friction", type=_nonnegative_float, default=0.0, metavar="MU")
+    cmp_.add_argument("--out", metavar="DIR", default=".", help="output folder (default: .)")
+    cmp_.add_argument(
+        "--closing",
+        type=_positive_float,
+        default=6.0,
+        metavar="MM",
+        help="closing displacement of every grasp (default 6 mm)",
+    )
+    cmp_.add_argument(
+        "--friction",
+        type=_nonnegative_float,
+        default=0.0,
+        metavar="MU",
+        help="friction coefficient of the release traces (default 0: frictionless)",
+    )
     cmp_.add_argument(
         "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
     )
@@ -306,9 +318,17 @@ def _parser() -> argparse.ArgumentParser:
         "length for cylinders of increasing size. Writes DIR/clamp_study.png and .json; the "
         "JSON keeps every finished grasp, so an interrupted study, run again, continues.",
     )
-    cs.add_argument("--out", metavar="DIR", default=".")
-    cs.add_argument("--closing", type=_positive_float, default=6.0, metavar="MM")
-    cs.add_argument("--finger", metavar="FINGER.toml", default=None)
+    cs.add_argument("--out", metavar="DIR", default=".", help="output folder (default: .)")
+    cs.add_argument(
+        "--closing",
+        type=_positive_float,
+        default=6.0,
+        metavar="MM",
+        help="closing displacement of every grasp (default 6 mm)",
+    )
+    cs.add_argument(
+        "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
+    )
 
     sw = sub.add_parser(
         "sweep",
@@ -426,6 +446,10 @@ def _crossbeam_table(sol, finger) -> list[str]:
 # --------------------------------------------------------------------------------------
 # Commands
 # --------------------------------------------------------------------------------------
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _in_file(source: str, e: Exception) -> UserError:
@@ -630,8 +654,9 @@ def _cmd_validate(args) -> int:
     grasp = _check_grasp_objects(args.finger, finger, settings)
     name = f" ({settings.name})" if settings.name else ""
     print(
-        f"{args.finger}{name}: OK: {finger.n_crossbeams} crossbeams, {len(finger.loads)} "
-        f"loads, mode {settings.mode}" + (f"; grasp: {grasp}" if grasp else "")
+        f"{args.finger}{name}: OK: {_count(finger.n_crossbeams, 'crossbeam')}, "
+        f"{_count(len(finger.loads), 'load')}, mode {settings.mode}"
+        + (f"; grasp: {grasp}" if grasp else "")
     )
     return EXIT_OK
 

@@ -150,6 +150,7 @@ def test_validate_examples(name):
     code, out, err = run(["validate", str(ROOT / "examples" / f"{name}.toml")])
     assert code == 0, err
     assert "OK" in out and err == ""
+    assert " crossbeams, 1 load, mode " in out  # (each example has one load)
 
 
 def test_validate_warns_of_a_load_in_the_clamp_in_one_line(tmp_path):
