@@ -292,23 +292,13 @@ def _parser() -> argparse.ArgumentParser:
         "DIR/compare.json and DIR/compare_record.json, which keeps every finished release "
         "trace, so an interrupted comparison, run again, continues.",
     )
-    cmp_.add_argument("--out", metavar="DIR", default=".", help="output folder (default: .)")
-    cmp_.add_argument(
-        "--closing",
-        type=_positive_float,
-        default=6.0,
-        metavar="MM",
-        help="closing displacement of every grasp (default 6 mm)",
-    )
+    _add_study_options(cmp_)
     cmp_.add_argument(
         "--friction",
         type=_nonnegative_float,
         default=0.0,
         metavar="MU",
         help="friction coefficient of the release traces (default 0: frictionless)",
-    )
-    cmp_.add_argument(
-        "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
     )
 
     cs = sub.add_parser(
@@ -318,17 +308,7 @@ def _parser() -> argparse.ArgumentParser:
         "length for cylinders of increasing size. Writes DIR/clamp_study.png and .json; the "
         "JSON keeps every finished grasp, so an interrupted study, run again, continues.",
     )
-    cs.add_argument("--out", metavar="DIR", default=".", help="output folder (default: .)")
-    cs.add_argument(
-        "--closing",
-        type=_positive_float,
-        default=6.0,
-        metavar="MM",
-        help="closing displacement of every grasp (default 6 mm)",
-    )
-    cs.add_argument(
-        "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
-    )
+    _add_study_options(cs)
 
     sw = sub.add_parser(
         "sweep",
@@ -452,25 +432,36 @@ def _count(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
-def _in_file(source: str, e: Exception) -> UserError:
-    """A finger error found at solve time, prefixed by its file as the file's own are."""
+def _in_file(source: str | None, e: Exception) -> str:
+    """A finger error found after reading (e.g. at solve time), prefixed by the finger
+    file it came from as the file's own errors are."""
     text = str(e)
-    return UserError(text if text.startswith(f"{source}:") else f"{source}: {text}")
+    return text if source is None or text.startswith(f"{source}:") else f"{source}: {text}"
 
 
-def _solve(finger, settings, mode, source=None):
+def _solve(finger, settings, mode):
     kwargs = settings.solve_kwargs()
     if mode is not None:
         kwargs["mode"] = mode
     t0 = time.perf_counter()
-    try:
-        sol = fr.solve_finger(finger, **kwargs)
-    except fr.FingerError as e:
-        if source is None:
-            raise
-        raise _in_file(source, e) from None
+    sol = fr.solve_finger(finger, **kwargs)
     sol.max_residual.block_until_ready()
     return sol, time.perf_counter() - t0
+
+
+def _add_study_options(parser):
+    """--out, --closing and --finger of the paper studies (compare, clamp-study)."""
+    parser.add_argument("--out", metavar="DIR", default=".", help="output folder (default: .)")
+    parser.add_argument(
+        "--closing",
+        type=_positive_float,
+        default=6.0,
+        metavar="MM",
+        help="closing displacement of every grasp (default 6 mm)",
+    )
+    parser.add_argument(
+        "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
+    )
 
 
 def _add_check_resolution(parser, what):
@@ -526,7 +517,7 @@ def _cmd_solve(args) -> int:
             f"`finray grasp {args.finger}` closes the finger on them",
             file=sys.stderr,
         )
-    sol, elapsed = _solve(finger, settings, args.mode, source=args.finger)
+    sol, elapsed = _solve(finger, settings, args.mode)
     print(_summary(sol, finger, settings, args.finger, elapsed))
     check = _check_resolution(finger, settings, sol, rtol)
     if args.out:
@@ -573,10 +564,7 @@ def _cmd_limit(args) -> int:
     if args.mode is not None:
         kwargs["mode"] = args.mode
     t0 = time.perf_counter()
-    try:
-        lim = fr.limit_load(finger, **kwargs)
-    except fr.FingerError as e:
-        raise _in_file(args.finger, e) from None
+    lim = fr.limit_load(finger, **kwargs)
     factor = float(lim.load_factor)
     elapsed = time.perf_counter() - t0
     found = bool(lim.found)
@@ -1045,6 +1033,7 @@ def main(argv=None) -> int:
 
 def _main(argv) -> int:
     parser = _parser()
+    args = None
     try:
         try:
             args = parser.parse_args(argv)
@@ -1055,7 +1044,10 @@ def _main(argv) -> int:
             enable_compilation_cache()
             choose_device(args.command)
         return COMMANDS[args.command](args)
-    except (UserError, fio.FingerFileError, fr.FingerError, DesignError, StudyRecordError) as e:
+    except fr.FingerError as e:  # (the finger file's, when a command reads one)
+        print(f"finray: error: {_in_file(getattr(args, 'finger', None), e)}", file=sys.stderr)
+        return EXIT_USER
+    except (UserError, fio.FingerFileError, DesignError, StudyRecordError) as e:
         print(f"finray: error: {e}", file=sys.stderr)
         return EXIT_USER
     except OSError as e:  # e.g. an output path that cannot be written

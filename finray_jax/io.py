@@ -129,6 +129,7 @@ class GraspSettings:
 
 
 MAX_STEPS = 10_000  # solver.steps: more is a typo (memory and compile time grow with it)
+MAX_ITERATIONS = 1_000_000  # the solver's integer options (iteration and step counts)
 
 
 def _show(v) -> str:
@@ -645,7 +646,7 @@ def _settings(value, r: _Reader, name: str, description: str) -> SolveSettings:
         elif f.name == "linear_solver":
             opts[f.name] = r.string(v, path, LINEAR_SOLVERS)
         elif isinstance(f.default, int):
-            opts[f.name] = r.integer(v, path, minimum=1, maximum=1_000_000)
+            opts[f.name] = r.integer(v, path, minimum=1, maximum=MAX_ITERATIONS)
         else:
             opts[f.name] = r.number(v, path, positive=True)
     try:

@@ -688,7 +688,8 @@ def run_optimize(
 
 def _best_path(best_path: str, i: int) -> str:
     """best.toml for the first object, best_object<i>.toml for object i of several."""
-    return best_path if i == 0 else best_path.replace(".toml", f"_object{i}.toml")
+    stem, ext = os.path.splitext(best_path)
+    return best_path if i == 0 else f"{stem}_object{i}{ext}"
 
 
 def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, anchors):
@@ -712,8 +713,7 @@ def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, a
     for i, base in enumerate(problem.object_fingers()):
         finger = eqx.tree_at(lambda f: (f.loads, f.objects), designed, (base.loads, base.objects))
         which = "" if problem.diameters is None else f" (object {i}: {problem.diameters[i]:g} mm)"
-        names = [os.path.basename(_best_path(BEST_TOML, j)) for j in range(n_obj) if j != i]
-        others = f"# The other objects' files: {', '.join(names)}." if names else None
+        others = [_best_path(BEST_TOML, j) for j in range(n_obj) if j != i]
         head = [
             f"# Best feasible design of {os.path.basename(problem.source)} (finray optimize), "
             f"iteration {iteration}{which}:",
@@ -726,7 +726,7 @@ def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, a
             "# ([contact] stiffness = k reproduces the figure).",
         ]
         if others:
-            head.append(others)
+            head.append(f"# The other objects' files: {', '.join(others)}.")
         text = fio.finger_to_toml(finger, problem.settings)
         texts.append("\n".join(head) + "\n" + text + "\n".join(grasp_lines) + "\n")
     return texts
