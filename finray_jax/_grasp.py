@@ -544,7 +544,7 @@ def _find_closing(stepper, at, w, target, max_step=np.inf):
 
 class ReleaseTrace(eqx.Module):
     """The quasi-static pull-out of the object: pull distance, holding force (all fingers),
-    and the peak."""
+    and the peak (NaN, with peak_pull, when not even the pull's onset solved)."""
 
     pull: np.ndarray
     force: np.ndarray
@@ -626,8 +626,12 @@ def release_force(
                 message += f": {RESULTS[stepper.failure]}"
             break
     f = np.asarray(forces)
-    i = int(np.argmax(f)) if len(f) else 0
-    peak, peak_pull = (float(f[i]), float(pulls[i])) if len(f) else (0.0, 0.0)
+    if not len(f):  # (not even the pull's onset solved: no holding force is known)
+        message += ": no point of the trace solved, the holding force is unknown (NaN)"
+        peak, peak_pull = np.nan, np.nan
+    else:
+        i = int(np.argmax(f))
+        peak, peak_pull = float(f[i]), float(pulls[i])
     if peak <= 1e-9 * float(np.max(np.abs(f), initial=0.0)):
         # round-off where the contact fades out is not a holding force
         peak, peak_pull = 0.0, 0.0

@@ -103,6 +103,18 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):
         raise UserError(f"{message} (see {self.prog} --help)")
 
+    def parse_args(self, args=None, namespace=None):
+        # argparse reports a command's unknown option from the top parser ("see finray
+        # --help"); the command's own parser names the help that lists its options.
+        argv = sys.argv[1:] if args is None else list(args)
+        parsed, extra = self.parse_known_args(argv, namespace)
+        if extra:
+            name = getattr(parsed, "command", None)
+            at = argv.index(name) if name in argv else len(argv)
+            command = self._commands[name] if extra[0] in argv[at + 1 :] else self
+            command.error(f"unrecognized arguments: {' '.join(extra)}")
+        return parsed
+
 
 # --------------------------------------------------------------------------------------
 # Set-up
@@ -197,6 +209,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action="version", version=f"finray_jax {fr.__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    p._commands = sub.choices
 
     s = sub.add_parser(
         "solve",
@@ -637,7 +650,54 @@ def _check_grasp_objects(path, finger, settings) -> str | None:
     return f"{n} object{'s' if n > 1 else ''} ahead and in reach, {along}"
 
 
+def _study_kind(path) -> str | None:
+    """"sweep" or "optimize" for a study file (a top-level `finger = "base.toml"`), else
+    None (a finger file, or a file the finger reader reports on)."""
+    import tomllib
+
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except (OSError, tomllib.TOMLDecodeError):
+        return None
+    if not isinstance(doc.get("finger"), str):
+        return None
+    return "optimize" if "objective" in doc or "optimizer" in doc else "sweep"
+
+
+def _shown_path(path) -> str:
+    """A path relative to the working directory when it lies below it."""
+    rel = os.path.relpath(path)
+    return path if rel.startswith("..") else rel
+
+
+def _validate_study(path, kind) -> str:
+    """Read a sweep or optimisation file (its base finger too) and say what it holds."""
+    if kind == "sweep":
+        from . import sweep as fsweep
+
+        sw = fsweep.load_sweep(path)
+        what = (
+            f"sweep of {_count(sw.size, 'design')} ({sw.sampling}) over {', '.join(sw.names)}; "
+            f"{_count(len(sw.outputs), 'output')}, mode {sw.mode}"
+        )
+        return f"{path}: OK: {what}; base finger {_shown_path(sw.finger_path)}"
+    from . import optimize_file
+
+    pb = optimize_file.load_optimize(path)
+    names = ", ".join(d.name for d in pb.design)
+    what = (
+        f"optimise {pb.objective} over {names}; {pb.optimizer}, "
+        f"{_count(pb.iterations, 'iteration')}"
+    )
+    return f"{path}: OK: {what}; base finger {_shown_path(pb.finger_path)}"
+
+
 def _cmd_validate(args) -> int:
+    kind = _study_kind(args.finger)
+    if kind is not None:
+        print(_validate_study(args.finger, kind))
+        return EXIT_OK
     finger, settings = fio.load_finger(args.finger)
     grasp = _check_grasp_objects(args.finger, finger, settings)
     name = f" ({settings.name})" if settings.name else ""

@@ -146,7 +146,7 @@ def _peak_pull(problem: OptimizeProblem, g: GraspSolution, i: int, say):
         step=problem.pull_step,
         friction=problem.friction,
     )
-    if tr.peak <= 0:
+    if not tr.peak > 0:  # (NaN: no point of the trace solved)
         raise OptimizeError(
             f"{problem.source}: object {i} is not held at the initial design (release trace "
             f"with friction = {problem.friction:g}: {tr.message}); holding_force needs a "

@@ -153,6 +153,32 @@ def test_validate_examples(name):
     assert " crossbeams, 1 load, mode " in out  # (each example has one load)
 
 
+@pytest.mark.parametrize(
+    "name, says",
+    [
+        ("sweep_clamp", "sweep of 29 designs (grid) over adaptor.back_clamp_length; 5 outputs"),
+        ("sweep_random_10k", "sweep of 10000 designs (random) over adaptor.back_clamp_length, "),
+        ("optimize_clamp", "optimise contact_force over adaptor.back_clamp_length, "),
+    ],
+)
+def test_validate_reads_sweep_and_optimisation_files(name, says):
+    """A study file is checked as one (its base finger too), not refused as a finger file
+    with an unknown key `finger`."""
+    code, out, err = run(["validate", str(ROOT / "examples" / f"{name}.toml")])
+    assert code == 0 and err == "", err
+    assert f"{name}.toml: OK: {says}" in out and "; base finger " in out
+
+
+def test_validate_reports_a_bad_study_file(tmp_path, capsys):
+    text = (ROOT / "examples" / "sweep_clamp.toml").read_text()
+    (tmp_path / "ref_a.toml").write_text((ROOT / "examples" / "ref_a.toml").read_text())
+    path = tmp_path / "bad_sweep.toml"
+    path.write_text(text.replace("points = 29", "points = 1"))
+    assert cli.main(["validate", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err == f"finray: error: {path}: design[0].points = 1: must be an integer >= 2\n"
+
+
 def test_validate_warns_of_a_load_in_the_clamp_in_one_line(tmp_path):
     text = (ROOT / "examples" / "ref_a.toml").read_text()
     text = text.replace(
@@ -293,6 +319,23 @@ def test_usage_errors(argv, capsys):
     assert err.startswith("finray: error: ")
     assert len(err.strip().splitlines()) == 1  # (argparse's usage text left out)
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "argv, helps",
+    [
+        (["solve", "--bogus", REF_A], "finray solve --help"),
+        (["validate", REF_A, "extra.toml"], "finray validate --help"),
+        (["--bogus", "solve", REF_A], "finray --help"),
+    ],
+)
+def test_usage_error_points_at_the_commands_help(argv, helps, capsys):
+    """An unknown option of a command is reported with that command's help, which lists
+    its options; argparse on its own sends the user to the top-level help."""
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("finray: error: unrecognized arguments: ")
+    assert err.strip().endswith(f"(see {helps})")
 
 
 def test_help_and_version(capsys):

@@ -597,6 +597,24 @@ def test_modified_adaptor_without_friction_pushes_the_object_out(grasps):
     assert rough.peak > 0.1 * float(modified.contact.normal_force)
 
 
+def test_release_trace_without_a_solved_point_reports_no_holding_force(grasps, monkeypatch):
+    """When not even the pull's onset solves (Finger-1 on the modified adaptor with
+    l_c = 0 and mu = 0.3 does this), the trace has no point: its peak is NaN and its
+    message says so, not a holding force of 0 N with "not held"."""
+    from finray_jax import _grasp
+
+    original, _ = grasps
+    monkeypatch.setattr(_grasp._Stepper, "solve", lambda self, f, i: (None, False))
+    monkeypatch.setattr(
+        _grasp._Stepper, "follow", lambda self, at, t0, t1, init, *a, **k: (t0, init, False)
+    )
+    tr = fr.release_force(original, step=4.0, friction=0.3)
+    assert tr.pull.size == 0 and not tr.complete
+    assert np.isnan(tr.peak) and np.isnan(tr.peak_pull)
+    assert "equilibrium lost at pull 0 mm" in tr.message
+    assert "holding force is unknown" in tr.message and "not held" not in tr.message
+
+
 def test_banded_newton_step_on_the_contact_jacobian(grasps):
     """The banded solve's pattern and step on a grasp with objects and the support (many
     short segments, stiff penalties): see test_banded."""
