@@ -651,7 +651,7 @@ def _check_grasp_objects(path, finger, settings) -> str | None:
 
 
 def _study_kind(path) -> str | None:
-    """"sweep" or "optimize" for a study file (a top-level `finger = "base.toml"`), else
+    """The kind of a study file ("sweep" or "optimize": a top-level `finger = "base.toml"`), else
     None (a finger file, or a file the finger reader reports on)."""
     import tomllib
 
