@@ -540,12 +540,14 @@ def _check_main_beams_apart(finger: Finger, front: _Centreline, back: _Centrelin
         least = own.half(0.0) + float(other.half(s[0]))
         if d[0] < least:
             where = "on" if d[0] <= tol else f"{d[0]:.4g} mm from"
-            other_name = "front" if other is front else "back"
+            own_name, other_name = ("back", "front") if other is front else ("front", "back")
             raise FingerError(
                 f"{base_name} = {own.p[0].tolist()} lies {where} the {other_name} beam's "
                 f"centreline (nearest at {other_name} s = {s[0]:.4g}): it must lie at least "
-                f"{least:.4g} mm from it (half the front plus half the back thickness), or "
-                "the two beams overlap; they may meet only at the tip"
+                f"{least:.4g} mm from it (half of {own_name}.thickness = "
+                f"{2 * own.half(0.0):.4g} mm at the base plus half of {other_name}.thickness "
+                f"= {2 * float(other.half(s[0])):.4g} mm there), or the two beams overlap; "
+                "they may meet only at the tip"
             )
     hit = _crossing(front, back)
     if hit is not None:

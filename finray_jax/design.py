@@ -59,6 +59,7 @@ Outputs of the grasp's release trace (`RELEASE_OUTPUTS`, name -> fn(ReleaseTrace
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import inspect
 import re
@@ -204,24 +205,40 @@ DESIGN_VALUES: dict[str, DesignValue] = {
 _NAME = re.compile(r"(?P<base>[A-Za-z_][\w.]*)(?:\[(?P<index>-?\d+)\])?")
 
 
-def design_names(finger: Finger | None = None) -> list[str]:
-    """Valid design-value names (indexed ones as `name[i]` with the valid range of i)."""
+def design_names(finger: Finger | None = None, *, scalar: bool = False) -> list[str]:
+    """Valid design-value names (indexed ones as `name[i]` with the valid range of i).
+    scalar: only names of one number (a per-crossbeam value only with its index)."""
     n = None if finger is None else finger.n_crossbeams
     out = []
     for name, dv in DESIGN_VALUES.items():
-        out.append(name)
+        if not (scalar and dv.per_crossbeam):
+            out.append(name)
         if dv.per_crossbeam:
             out.append(f"{name}[i]" if n is None else f"{name}[0..{n - 1}]")
     return out
 
 
-def _parse(name, finger: Finger) -> tuple[DesignValue, int | None]:
+def _alike(name: str, typed: str) -> bool:
+    """Whether a suggested name's last part is close to the typed one's too (a shared
+    prefix alone, as in crossbeams.foo and crossbeams.front_s, is no likeness)."""
+    last = lambda n: n.rsplit(".", 1)[-1].lower()
+    return difflib.SequenceMatcher(None, last(name), last(typed)).ratio() >= 0.6
+
+
+def _parse(name, finger: Finger, scalar: bool = False) -> tuple[DesignValue, int | None]:
     m = _NAME.fullmatch(name) if isinstance(name, str) else None
     dv = DESIGN_VALUES.get(m["base"]) if m else None
     if dv is None:
-        raise DesignError(
-            f"unknown design value {name!r}; valid names: {', '.join(design_names(finger))}"
-        )
+        base = m["base"] if m else str(name)
+        close = [
+            c
+            for c in difflib.get_close_matches(base, DESIGN_VALUES, cutoff=0.75)
+            if _alike(c, base)
+        ]
+        index = f"[{m['index']}]" if m and m["index"] is not None else ""
+        hint = f" (did you mean '{close[0]}{index}'?)" if close else ""
+        valid = ", ".join(design_names(finger, scalar=scalar))
+        raise DesignError(f"unknown design value {name!r}{hint}; valid names: {valid}")
     if m["index"] is None:
         return dv, None
     i, n = int(m["index"]), finger.n_crossbeams
@@ -238,7 +255,7 @@ def _parse(name, finger: Finger) -> tuple[DesignValue, int | None]:
 def check_design_names(finger: Finger, names, *, scalar: bool = False) -> None:
     """Raise DesignError for an unknown name (or, with scalar=True, a whole-array name)."""
     for name in names:
-        dv, i = _parse(name, finger)
+        dv, i = _parse(name, finger, scalar)
         if scalar and dv.per_crossbeam and i is None:
             raise DesignError(
                 f"design value {name!r} is an array of {finger.n_crossbeams} numbers; give one "

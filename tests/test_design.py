@@ -127,11 +127,29 @@ def test_angles_are_applied_after_front_s():
         ),
         ("tip.x[1]", r"'tip.x' takes no index"),
         ("front thickness", r"unknown design value 'front thickness'"),
+        (
+            "crossbeam.thickness[2]",
+            r"'crossbeam.thickness\[2\]' \(did you mean 'crossbeams.thickness\[2\]'\?\)",
+        ),
+        ("adaptor.back_clamp_lenght", r"\(did you mean 'adaptor.back_clamp_length'\?\)"),
     ],
 )
 def test_unknown_names(name, match):
     with pytest.raises(design.DesignError, match=match):
         design.set_design(fr.ref_finger_a("L1"), {name: 1.0})
+
+
+def test_names_listed_where_scalars_are_needed_are_scalars():
+    """Where one number is needed (sweeps, optimisation), the list of valid names offers a
+    per-crossbeam value only with its index; set_design takes whole arrays too."""
+    f = fr.ref_finger_a("L1")
+    with pytest.raises(design.DesignError) as scalar:
+        design.check_design_names(f, ["nope"], scalar=True)
+    with pytest.raises(design.DesignError) as whole:
+        design.check_design_names(f, ["nope"])
+    assert "crossbeams.thickness[0..6]" in str(scalar.value)
+    assert "crossbeams.thickness," not in str(scalar.value)
+    assert "crossbeams.thickness, crossbeams.thickness[0..6]" in str(whole.value)
 
 
 def test_whole_array_names_are_refused_where_scalars_are_needed():

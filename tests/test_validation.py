@@ -238,6 +238,19 @@ def test_back_base_on_or_near_the_front_beam(finger, back_base):
     _raises(bad, f"back_base = {list(back_base)}", where, "front beam's centreline", "1.5 mm")
 
 
+def test_base_too_close_names_both_thicknesses(finger):
+    """A base far from the other beam but thicker than the gap: the message names the two
+    thickness fields, not only the base (a 1e308 mm thick beam used to read as a misplaced
+    back base)."""
+    thick = _main_beams(finger, front=fr.Section(30.0, 20.0), back=fr.Section(60.0, 20.0))
+    _raises(
+        thick,
+        "back_base = [40.0, 0.0] lies 40 mm from the front beam's centreline",
+        "at least 45 mm",
+        "half of back.thickness = 60 mm at the base plus half of front.thickness = 30 mm",
+    )
+
+
 def test_front_base_on_the_back_beam(finger):
     # Collinear beams, the back base below the front base: the back beam runs through
     # the front beam's base and along it (a crossbeam could then join coincident points).
