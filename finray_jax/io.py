@@ -132,6 +132,26 @@ MAX_STEPS = 10_000  # solver.steps: more is a typo (memory and compile time grow
 MAX_ITERATIONS = 1_000_000  # the solver's integer options (iteration and step counts)
 
 
+# Words users write for a choice, by what they mean (a spelling match would send
+# "fixed" to "pinned").
+_SYNONYMS = {
+    "fixed": ("clamped",),
+    "clamp": ("clamped",),
+    "built-in": ("clamped",),
+    "encastre": ("clamped",),
+    "hinge": ("pinned",),
+    "hinged": ("pinned",),
+    "pin": ("pinned",),
+    "released": ("free",),
+    "none": ("free",),
+    "2d": ("planar",),
+    "plane": ("planar",),
+    "in-plane": ("planar",),
+    "3d": ("spatial",),
+    "3-d": ("spatial",),
+}
+
+
 def _show(v) -> str:
     """A value as the user wrote it in TOML."""
     if isinstance(v, bool):
@@ -275,7 +295,8 @@ class _Reader:
         if not isinstance(value, str):
             raise self.error(path, f"expected a string, got {_type_name(value)}", value)
         if choices is not None and value not in choices:
-            close = difflib.get_close_matches(value, list(choices), n=1, cutoff=0.5)
+            close = [c for c in _SYNONYMS.get(value.lower(), ()) if c in choices]
+            close = close or difflib.get_close_matches(value, list(choices), n=1, cutoff=0.6)
             hint = f" (did you mean '{close[0]}'?)" if close else ""
             options = " | ".join(f'"{c}"' for c in choices)
             raise self.error(path, f"must be one of {options}{hint}", value)

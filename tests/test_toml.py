@@ -335,6 +335,24 @@ def test_base_kind_suggests():
     assert_error(d, 'adaptor.back_base = "clampd"', "did you mean 'clamped'")
 
 
+@pytest.mark.parametrize(
+    "table, key, typed, meant",
+    [
+        ("adaptor", "front_base", "fixed", "clamped"),
+        ("adaptor", "front_base", "Hinged", "pinned"),
+        ("adaptor", "back_base", "released", "free"),
+        ("solver", "mode", "2D", "planar"),
+        ("solver", "mode", "3d", "spatial"),
+    ],
+)
+def test_choice_suggests_by_meaning(table, key, typed, meant):
+    """Words that mean a choice are suggested as it (by spelling alone "fixed" would
+    get 'pinned')."""
+    d = doc()
+    d.setdefault(table, {})[key] = typed
+    assert_error(d, f'{table}.{key} = "{typed}"', f"did you mean '{meant}'")
+
+
 def test_clamp_length_needs_clamped_base():
     d = doc()
     d["adaptor"]["front_base"] = "pinned"
