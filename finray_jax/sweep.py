@@ -478,7 +478,8 @@ def run_sweep(
     plot: bool = True,
     after_chunk: Callable[[int], None] | None = None,
 ) -> SweepRun:
-    """Run (or continue) a sweep into `out_dir`: results.csv, manifest.json, sweep.png.
+    """Run (or continue) a sweep into `out_dir`: results.csv, manifest.json, sweep.png
+    (not drawn when no design converged or went beyond its limit load: nothing to plot).
 
     max_chunks: stop after this many chunks (re-run to continue). progress: a text stream
     for the progress line, e.g. sys.stderr (None: quiet). after_chunk(rows_done) runs
@@ -538,7 +539,8 @@ def run_sweep(
             os.path.join(out_dir, MANIFEST),
             json.dumps(_manifest(sweep, True, source), indent=2) + "\n",
         )
-        if plot:
+        drawn = np.isin(data["status"].astype(str), ("converged", "beyond_limit_load"))
+        if plot and np.any(drawn):  # (else the figure would be empty axes)
             figure = os.path.join(out_dir, FIGURE)
             plot_sweep(sweep, data, figure)
     names, counts = np.unique(data["status"].astype(str), return_counts=True)

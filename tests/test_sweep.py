@@ -203,6 +203,8 @@ def test_a_sweep_in_which_no_design_converged_exits_3_and_says_why(sweep_file, t
     assert [r[-1] for r in rows] == [
         f"crossbeams[1].thickness must be positive, got {t}" for t in ("-1.2", "-0.8") * 3
     ]
+    # nothing to plot: no figure (it used to be empty axes), and none claimed
+    assert not (out / "sweep.png").exists() and "sweep.png" not in stdout
     # Run again (finished): the same answer.
     code, _, err = run(["sweep", str(sweep_file), "--out", str(out)])
     assert code == 3 and "no design of the sweep converged" in err
