@@ -414,28 +414,35 @@ def grasp(
         return _moved(finger, -t * w)
 
     cap = _closing_step_cap(finger)
-    if closing is not None:
-        t, sol, ok = stepper.follow(at, 0.0, d, None, d / 8.0, 1e-4 * max(d, 1.0), max_step=cap)
-    else:
-        t, sol, ok = _find_closing(stepper, at, w, fa, cap)
-    if sol is None:
-        sol, _ = stepper.solve(at(0.0), None)
-    res = contact_result(at(t), sol, w)
     limit = float(finger.contact.max_penetration * finger.front.thickness)
     rounds = 0
-    while ok and stiffen and float(res.max_penetration) > limit and rounds < 6:
-        # penetration = delta / 2 + q / k: scale k so that q / k fits in what is left,
-        # stepping log k from the old to the new stiffness (warm started).
-        onset = float(0.5 * smoothing(finger))
-        excess = (float(res.max_penetration) - onset) / max(limit - onset, 1e-12)
-        k_new = k * 1.3 * max(excess, 1.0)
-        stiffer = lambda u, k0=k, k1=k_new: _with_stiffness(at(t), k0 * (k1 / k0) ** u)
-        _, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
-        if ok:
-            k = k_new
-            finger = _with_stiffness(finger, k)
-            res = contact_result(at(t), sol, w)
-        rounds += 1
+    while True:
+        if closing is not None:
+            t, sol, ok = stepper.follow(at, 0.0, d, None, d / 8.0, 1e-4 * max(d, 1.0), max_step=cap)
+        else:
+            t, sol, ok = _find_closing(stepper, at, w, fa, cap)
+        if sol is None:
+            sol, _ = stepper.solve(at(0.0), None)
+        res = contact_result(at(t), sol, w)
+        stiffened = False
+        while ok and stiffen and float(res.max_penetration) > limit and rounds < 6:
+            # penetration = delta / 2 + q / k: scale k so that q / k fits in what is left,
+            # stepping log k from the old to the new stiffness (warm started).
+            onset = float(0.5 * smoothing(finger))
+            excess = (float(res.max_penetration) - onset) / max(limit - onset, 1e-12)
+            k_new = k * 1.3 * max(excess, 1.0)
+            stiffer = lambda u, k0=k, k1=k_new, t=t: _with_stiffness(at(t), k0 * (k1 / k0) ** u)
+            _, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
+            if ok:
+                k = k_new
+                finger = _with_stiffness(finger, k)  # (at() closes over the new finger)
+                res = contact_result(at(t), sol, w)
+                stiffened = True
+            rounds += 1
+        # A stiffer contact changes the actuator force at that closing: find the closing
+        # for the target force again (a prescribed closing stays what it was).
+        if closing is not None or not (ok and stiffened):
+            break
     if not ok:  # (the last accepted state, with why the next step failed)
         code = RESULTS.where(jnp.asarray(False), RESULTS.successful, stepper.failure)
         sol = eqx.tree_at(lambda s: s.result, sol, code)
@@ -539,7 +546,7 @@ def _find_closing(stepper, at, w, target, max_step=np.inf):
             lo, f_lo, sol_lo = t, f, sol
         else:
             hi, f_hi, sol_hi = t, f, sol
-    return t, sol, True
+    return t, sol, False  # (the bracket did not close on the target: not found)
 
 
 class ReleaseTrace(eqx.Module):

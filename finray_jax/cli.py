@@ -317,11 +317,32 @@ def _parser() -> argparse.ArgumentParser:
     cs = sub.add_parser(
         "clamp-study",
         help="best back-beam clamp length against object size (the paper's Fig. 5)",
-        description="Contact force of the modified adaptor against the back beam's clamp "
-        "length for cylinders of increasing size. Writes DIR/clamp_study.png and .json; the "
-        "JSON keeps every finished grasp, so an interrupted study, run again, continues.",
+        description="Contact force (or, with --holding, holding force) of the modified "
+        "adaptor against the back beam's clamp length for cylinders of increasing size, at "
+        "equal closing displacement or (--actuator-force) equal actuator force. Writes "
+        "DIR/clamp_study.png and .json; the JSON keeps every finished grasp, so an "
+        "interrupted study, run again, continues.",
     )
     _add_study_options(cs)
+    cs.add_argument(
+        "--actuator-force",
+        type=_positive_float,
+        default=None,
+        metavar="N",
+        help="hold the actuator force equal instead of the closing (replaces --closing)",
+    )
+    cs.add_argument(
+        "--holding",
+        action="store_true",
+        help="also trace each release and pick the best l_c by the holding force",
+    )
+    cs.add_argument(
+        "--friction",
+        type=_nonnegative_float,
+        default=0.0,
+        metavar="MU",
+        help="friction coefficient of the release traces (with --holding; default 0)",
+    )
 
     sw = sub.add_parser(
         "sweep",
@@ -462,15 +483,18 @@ def _solve(finger, settings, mode):
     return sol, time.perf_counter() - t0
 
 
+STUDY_CLOSING = 6.0  # mm, the paper studies' closing displacement
+
+
 def _add_study_options(parser):
     """--out, --closing and --finger of the paper studies (compare, clamp-study)."""
     parser.add_argument("--out", metavar="DIR", default=".", help="output folder (default: .)")
     parser.add_argument(
         "--closing",
         type=_positive_float,
-        default=6.0,
+        default=STUDY_CLOSING,
         metavar="MM",
-        help="closing displacement of every grasp (default 6 mm)",
+        help=f"closing displacement of every grasp (default {STUDY_CLOSING:g} mm)",
     )
     parser.add_argument(
         "--finger", metavar="FINGER.toml", default=None, help="another finger (default Finger-1)"
@@ -1033,26 +1057,53 @@ def _cmd_clamp_study(args) -> int:
     from .plot import clamp_study_figure, save_figure
     from .studies import clamp_study
 
+    if args.friction and not args.holding:
+        raise UserError("--friction applies to the release traces: add --holding")
+    if args.actuator_force is not None and args.closing != STUDY_CLOSING:
+        raise UserError(
+            f"--closing {args.closing:g} and --actuator-force {args.actuator_force:g}: give one "
+            "(the actuator force sets each grasp's closing)"
+        )
     finger = _study_finger(args.finger)
     js = os.path.join(args.out, "clamp_study.json")
     try:
-        st = clamp_study(finger, closing=args.closing, progress=_progress, record=js)
+        st = clamp_study(
+            finger,
+            closing=args.closing,
+            actuator_force=args.actuator_force,
+            holding=args.holding,
+            friction=args.friction,
+            progress=_progress,
+            record=js,
+        )
     except KeyboardInterrupt:
         print(
             f"finray: interrupted; finished grasps are in {js}: run the same command to continue",
             file=sys.stderr,
         )
         return EXIT_INTERRUPTED
-    head = ["object (mm)"] + [f"l_c={x:g}" for x in st.clamp_lengths] + ["best l_c"]
-    rows = [
-        [f"{d:g}"] + [_f(x) for x in row] + [f"{b:g}"]
-        for d, row, b in zip(st.diameters, st.normal_force, st.best, strict=True)
-    ]
-    print(
-        "contact force (N) of the modified adaptor, support up to "
-        f"{st.support_length:g} mm, closing {args.closing:g} mm"
+    held = (
+        f"closing {args.closing:g} mm"
+        if args.actuator_force is None
+        else f"actuator force {args.actuator_force:g} N"
     )
-    print("\n".join(_table(head, rows)))
+    tables = [("contact force (N)", st.normal_force)]
+    if args.actuator_force is not None:
+        tables.append(("closing (mm)", st.closing))
+    if args.holding:
+        tables.append((f"holding force (N, mu = {args.friction:g})", st.holding_force))
+    head = ["object (mm)"] + [f"l_c={x:g}" for x in st.clamp_lengths]
+    for k, (what, values) in enumerate(tables):
+        best = what.startswith(st.measure)
+        rows = [
+            [f"{d:g}"] + [_f(x) for x in row] + ([_f(b)] if best else [])
+            for d, row, b in zip(st.diameters, values, st.best, strict=True)
+        ]
+        print(
+            ("\n" if k else "")
+            + f"{what} of the modified adaptor, support up to {st.support_length:g} mm, {held}"
+        )
+        print("\n".join(_table(head + (["best l_c"] if best else []), rows)))
     png = os.path.join(args.out, "clamp_study.png")
     save_figure(clamp_study_figure(st), png)
     print(f"wrote {png}\nwrote {js}")

@@ -379,17 +379,27 @@ def save_figure(fig, path, dpi: int = 130) -> None:
 
 
 def clamp_study_figure(study):
-    """Contact force against the back beam's clamp length, one line per object size."""
+    """The study's measured force (contact or holding) against the back beam's clamp
+    length, one line per object size; dotted lines mark the best clamp lengths."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7, 4.5), layout="constrained")
     ax = fig.add_subplot()
-    for d, row, best in zip(study.diameters, study.normal_force, study.best, strict=True):
+    for d, row, best in zip(study.diameters, study.force, study.best, strict=True):
         line = ax.plot(study.clamp_lengths, row, marker="o", label=f"{d:g} mm object")[0]
-        ax.axvline(best, color=line.get_color(), ls=":", lw=1)
+        if np.isfinite(best):
+            ax.axvline(best, color=line.get_color(), ls=":", lw=1)
     ax.set_xlabel("back-beam clamp length l_c (mm)")
-    ax.set_ylabel("contact force (N)")
-    ax.set_title(f"modified adaptor, support up to {study.support_length:g} mm")
+    ylabel = study.measure + " (N)"
+    if study.holding_force is not None:
+        ylabel = f"{study.measure} (N, mu = {study.friction:g})"
+    ax.set_ylabel(ylabel)
+    held = (
+        "equal closing"
+        if study.actuator_force is None
+        else f"actuator force {study.actuator_force:g} N"
+    )
+    ax.set_title(f"modified adaptor, support up to {study.support_length:g} mm, {held}")
     ax.grid(True, lw=0.4, alpha=0.5)
     ax.legend(fontsize="small")
     return fig

@@ -153,12 +153,31 @@ class ClampStudy:
     clamp_lengths: np.ndarray
     support_length: float
     normal_force: np.ndarray  # (diameters, clamp lengths), NaN where a grasp failed
+    # What each grasp held equal, and the closing it reached (the set value, or what the
+    # actuator force needed).
+    closing: np.ndarray | None = None
+    actuator_force: float | None = None
+    # The holding force (release trace's peak, with `friction`), when the study measures it
+    holding_force: np.ndarray | None = None
+    friction: float = 0.0
+
+    @property
+    def measure(self) -> str:
+        """What the best clamp length maximises: "contact force" or "holding force"."""
+        return "contact force" if self.holding_force is None else "holding force"
+
+    @property
+    def force(self) -> np.ndarray:
+        """The measured force, (diameters, clamp lengths): contact or holding."""
+        return self.normal_force if self.holding_force is None else self.holding_force
 
     @property
     def best(self) -> np.ndarray:
-        """The clamp length with the largest contact force, per object diameter."""
-        f = np.where(np.isfinite(self.normal_force), self.normal_force, -np.inf)
-        return self.clamp_lengths[np.argmax(f, axis=1)]
+        """The clamp length with the largest measured force, per object diameter (NaN
+        where no grasp of that diameter gave one)."""
+        f = np.where(np.isfinite(self.force), self.force, -np.inf)
+        best = self.clamp_lengths[np.argmax(f, axis=1)]
+        return np.where(np.isfinite(self.force).any(axis=1), best, np.nan)
 
 
 class StudyRecordError(ValueError):
@@ -222,11 +241,20 @@ def clamp_study(
     clamp_lengths=(0.0, 10.0, 20.0, 30.0, 40.0, 50.0),
     support_length: float = 60.0,
     closing: float = 6.0,
+    actuator_force: float | None = None,
+    holding: bool = False,
+    friction: float = 0.0,
+    pull_step: float = 2.0,
     progress=None,
     record=None,
 ) -> ClampStudy:
     """Contact force of the modified adaptor against the back beam's clamp length l_c
     (support up to `support_length`), for cylinders of several diameters.
+
+    Every grasp closes by `closing` (mm), or, with `actuator_force` (N), by what that
+    actuator force needs (a stiffer finger then closes less). holding: measure the
+    holding force too (the peak of `release_force` with `friction`, in `pull_step` mm
+    steps) and pick the best clamp length by it.
 
     record: a JSON file (the CLI's DIR/clamp_study.json) rewritten, atomically, after
     every grasp with the cells finished so far and the study's hash (finger and
@@ -240,42 +268,55 @@ def clamp_study(
         raise ValueError(
             f"clamp_lengths must lie in [0, support_length = {support_length}], got {lc.tolist()}"
         )
-    force = np.full((len(dia), len(lc)), np.nan)
-    solved = np.zeros(force.shape, bool)
+    if actuator_force is not None and not (np.isfinite(actuator_force) and actuator_force > 0):
+        raise ValueError(f"actuator_force must be a positive force (N), got {actuator_force}")
+    if not (np.isfinite(friction) and friction >= 0):
+        raise ValueError(f"friction must be a non-negative coefficient, got {friction}")
+    shape = (len(dia), len(lc))
+    cells = {"normal_force": np.full(shape, np.nan), "closing_reached": np.full(shape, np.nan)}
+    if holding:
+        cells["holding_force"] = np.full(shape, np.nan)
+    solved = np.zeros(shape, bool)
     settings = {
         "diameters": dia.tolist(),
         "clamp_lengths": lc.tolist(),
         "support_length": float(support_length),
-        "closing": float(closing),
+        "closing": None if actuator_force is not None else float(closing),
+        "actuator_force": None if actuator_force is None else float(actuator_force),
+        "holding": bool(holding),
+        "friction": float(friction) if holding else None,
+        "pull_step": float(pull_step) if holding else None,
     }
     digest = _study_hash("clamp-study", finger, settings)
     if record is not None:
         record = os.fspath(record)
         kept = _read_record(record, digest, "clamp-study", say)
         if kept is not None:
-            force = np.asarray(kept["normal_force"], dtype=float)  # (null: failed or not solved)
+            for key in cells:  # (null: failed or not solved)
+                cells[key] = np.asarray(kept[key], dtype=float)
             solved = np.asarray(kept["solved"], dtype=bool)
             say(f"continuing {record}: {int(solved.sum())} of {solved.size} grasps done")
 
     def study():
-        return ClampStudy(dia, lc, float(support_length), force.copy())
+        return ClampStudy(
+            dia,
+            lc,
+            float(support_length),
+            cells["normal_force"].copy(),
+            closing=cells["closing_reached"].copy(),
+            actuator_force=settings["actuator_force"],
+            holding_force=cells["holding_force"].copy() if holding else None,
+            friction=float(friction),
+        )
 
     def keep():
         done = bool(solved.all())
-        rec = {
-            "study_hash": digest,
-            "complete": done,
-            "diameters": dia,
-            "clamp_lengths": lc,
-            "support_length": float(support_length),
-            "closing": float(closing),
-            "normal_force": force,
-            "solved": solved,
-        }
+        rec = {"study_hash": digest, "complete": done, **settings, **cells, "solved": solved}
         if done:
             rec["best_clamp_length"] = study().best
         _write_record(record, rec)
 
+    how = {"closing": closing} if actuator_force is None else {"actuator_force": actuator_force}
     for i, d in enumerate(dia):
         base = with_object(finger, d)
         for j, l in enumerate(lc):
@@ -283,8 +324,14 @@ def clamp_study(
                 continue
             ad = Adaptor(front_base="pinned", back_clamp_length=l, support_length=support_length)
             say(f"{d:g} mm object, l_c = {l:g} mm")
-            g = grasp(with_adaptor(base, ad), closing)
-            force[i, j] = float(g.contact.normal_force) if g.converged else np.nan
+            g = grasp(with_adaptor(base, ad), **how)
+            if g.converged:
+                cells["normal_force"][i, j] = float(g.contact.normal_force)
+                cells["closing_reached"][i, j] = float(g.closing)
+                if holding:
+                    say(f"{d:g} mm object: release trace (mu = {friction:g})")
+                    tr = release_force(g, step=pull_step, friction=friction)
+                    cells["holding_force"][i, j] = tr.peak  # (NaN: no point of it solved)
             solved[i, j] = True
             if record is not None:
                 keep()

@@ -116,3 +116,54 @@ def test_an_interrupted_comparison_keeps_its_release_traces(tmp_path):
         np.testing.assert_allclose(b.force, a.force, rtol=1e-12, atol=1e-12)
     assert resumed.release_gain(50.0) == pytest.approx(clean.release_gain(50.0), rel=1e-12)
     assert json.loads(record.read_text())["complete"] is True
+
+
+def test_clamp_study_at_equal_actuator_force_by_holding_force(tmp_path):
+    """Held at the actuator force that the l_c = 10 mm grasp needs to close 6 mm, the
+    study closes that design by 6 mm again (the stiffer l_c = 30 mm design less); with
+    holding=True the best clamp length is the one with the larger holding force, and a
+    resumed study takes the holding forces from its record."""
+    finger = _finger()
+    ad = studies.Adaptor(front_base="pinned", back_clamp_length=10.0, support_length=60.0)
+    design = studies.with_adaptor(studies.with_object(finger, 18.0), ad)
+    g = studies.grasp(design, 6.0)
+    force = float(g.contact.actuator_force)
+    # grasp(actuator_force=) meets its force after the contact is stiffened (it used to
+    # stop at the closing found before, 6.36 mm here, and miss the force by 1.7 %)
+    by_force = studies.grasp(design, actuator_force=force)
+    assert by_force.converged
+    assert float(by_force.contact.actuator_force) == pytest.approx(force, rel=1e-7)
+    record = tmp_path / "clamp_study.json"
+    said = []
+    st = studies.clamp_study(
+        finger,
+        **SETTINGS,
+        actuator_force=force,
+        holding=True,
+        friction=0.3,
+        progress=said.append,
+        record=record,
+    )
+    assert st.measure == "holding force" and st.actuator_force == force
+    # (6 mm less what the penalty stiffness, stiffened to another value than at 6 mm,
+    # moves: 0.0045 mm)
+    assert st.closing[0, 0] == pytest.approx(6.0, abs=0.01)
+    assert st.closing[0, 1] < st.closing[0, 0]  # (stiffer: closes less for the same force)
+    assert np.all(np.isfinite(st.holding_force)) and np.all(st.holding_force > 0)
+    assert st.best[0] == st.clamp_lengths[np.argmax(st.holding_force[0])]
+    assert sum("release trace (mu = 0.3)" in m for m in said) == 2
+    said = []
+    again = studies.clamp_study(
+        finger,
+        **SETTINGS,
+        actuator_force=force,
+        holding=True,
+        friction=0.3,
+        progress=said.append,
+        record=record,
+    )
+    assert _grasps(said) == [] and np.array_equal(again.holding_force, st.holding_force)
+    rec = json.loads(record.read_text())
+    assert rec["closing"] is None and rec["actuator_force"] == force and rec["friction"] == 0.3
+    assert rec["closing_reached"] == st.closing.tolist()
+    assert rec["best_clamp_length"] == st.best.tolist()
