@@ -225,6 +225,12 @@ def test_validate_bad_file(tmp_path, capsys):
         (["grasp", REF_A, "--release", "--friction", "-0.5"], "--friction: must be >= 0"),
         (["compare", "--closing", "0"], "--closing: must be > 0, got '0'"),
         (["clamp-study", "--closing", "-6"], "--closing: must be > 0, got '-6'"),
+        (["clamp-study", "--actuator-force", "0"], "--actuator-force: must be > 0, got '0'"),
+        (["clamp-study", "--friction", "0.3"], "--friction applies to the release traces: add"),
+        (
+            ["clamp-study", "--closing", "5", "--actuator-force", "15"],
+            "--closing 5 and --actuator-force 15: give one",
+        ),
     ],
 )
 def test_bad_options_are_refused_before_any_solve(argv, message):
