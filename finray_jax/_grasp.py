@@ -415,12 +415,12 @@ def grasp(
 
     cap = _closing_step_cap(finger)
     limit = float(finger.contact.max_penetration * finger.front.thickness)
-    rounds = 0
+    rounds, start = 0, None
     while True:
         if closing is not None:
             t, sol, ok = stepper.follow(at, 0.0, d, None, d / 8.0, 1e-4 * max(d, 1.0), max_step=cap)
         else:
-            t, sol, ok = _find_closing(stepper, at, w, fa, cap)
+            t, sol, ok = _find_closing(stepper, at, w, fa, cap, start)
         if sol is None:
             sol, _ = stepper.solve(at(0.0), None)
         res = contact_result(at(t), sol, w)
@@ -443,6 +443,7 @@ def grasp(
         # for the target force again (a prescribed closing stays what it was).
         if closing is not None or not (ok and stiffened):
             break
+        start = (t, float(res.actuator_force), sol)  # (the secant starts from there)
     if not ok:  # (the last accepted state, with why the next step failed)
         code = RESULTS.where(jnp.asarray(False), RESULTS.successful, stepper.failure)
         sol = eqx.tree_at(lambda s: s.result, sol, code)
@@ -504,9 +505,13 @@ def _secant_point(lo, f_lo, hi, f_hi, target):
     return min(max(t, lo + 0.05 * (hi - lo)), hi - 0.05 * (hi - lo))
 
 
-def _find_closing(stepper, at, w, target, max_step=np.inf):
+def _find_closing(stepper, at, w, target, max_step=np.inf, start=None):
     """Closing displacement at which the actuator force equals `target` (secant on a
     bracket, each trial warm started; path steps of at most max_step).
+
+    start: (closing, actuator force, solution) of a solved state of this finger (the
+    closing found before the contact was stiffened): the bracket is built from it, not
+    grown from 0.
 
     Each secant trial starts from the nearer end of the bracket (the solved state there;
     at a lower end of 0, the undeformed finger) and, when that is more than max_step
@@ -514,13 +519,20 @@ def _find_closing(stepper, at, w, target, max_step=np.inf):
     does. Returns (t, solution, ok): on a failure, the last accepted state."""
     lo, f_lo, sol_lo = 0.0, 0.0, None
     hi, sol = 1.0, None
+    bracketed = start is not None and start[1] >= target
+    if bracketed:
+        hi, f_hi, sol = start  # (the bracket is [0, start])
+    elif start is not None:
+        lo, f_lo, sol_lo = start
+        hi = 1.25 * lo + 1e-3
     # Grow the bracket until the actuator force exceeds the target.
-    while True:
+    while not bracketed:
         t, sol, ok = stepper.follow(at, lo, hi, sol_lo, hi - lo, 1e-4, max_step=max_step)
         if not ok:
             return t, sol, False
         f_hi = float(contact_result(at(hi), sol, w).actuator_force)
-        if f_hi >= target:
+        bracketed = f_hi >= target
+        if bracketed:
             break
         lo, f_lo, sol_lo = hi, f_hi, sol
         hi *= 2.0
