@@ -162,3 +162,16 @@ def test_clamp_study_at_equal_actuator_force_by_holding_force(tmp_path):
     assert rec["closing"] is None and rec["actuator_force"] == force and rec["friction"] == 0.3
     assert rec["closing_reached"] == st.closing.tolist()
     assert rec["best_clamp_length"] == st.best.tolist()
+
+
+def test_clamp_study_best_is_nan_where_no_grasp_of_a_size_converged():
+    """(It was the first clamp length, argmax of all -inf.) The holding force, when
+    measured, decides over the contact force."""
+    lc = np.array([0.0, 10.0, 20.0])
+    force = np.array([[np.nan, np.nan, np.nan], [1.0, 3.0, 2.0]])
+    st = studies.ClampStudy(np.array([18.0, 35.0]), lc, 60.0, force)
+    assert np.isnan(st.best[0]) and st.best[1] == 10.0 and st.measure == "contact force"
+    held = studies.ClampStudy(
+        np.array([18.0, 35.0]), lc, 60.0, force, holding_force=np.array([[1.0, 0.5, 2.0]] * 2)
+    )
+    assert held.best.tolist() == [20.0, 20.0] and held.measure == "holding force"
