@@ -255,10 +255,11 @@ def _parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser(
         "validate",
-        help="check a finger file",
-        description="Check a finger file; print OK or the error (exit 1).",
+        help="check a finger, sweep or optimisation file",
+        description="Check a finger file, or a sweep or optimisation file with its base "
+        "finger; print OK or the error (exit 1).",
     )
-    v.add_argument("finger", metavar="FINGER.toml")
+    v.add_argument("finger", metavar="FILE.toml")
 
     d = sub.add_parser(
         "demo",
