@@ -382,6 +382,11 @@ def _parser() -> argparse.ArgumentParser:
 # --------------------------------------------------------------------------------------
 
 
+def _percent(x) -> str:
+    """A change in percent; "n/a" where a force it compares is unknown (NaN)."""
+    return f"{x:+.0f} %" if math.isfinite(x) else "n/a"
+
+
 def _f(x, digits=4) -> str:
     x = float(x)
     if not math.isfinite(x):
@@ -977,7 +982,7 @@ def _comparison_lines(cmp) -> list[str]:
             "contact force (N)",
             _f(o.normal_force),
             _f(m.normal_force),
-            f"{cmp.contact_force_gain:+.0f} %",
+            _percent(cmp.contact_force_gain),
             f"+{PAPER_CONTACT_FORCE_GAIN:.0f} % (simulated)",
         ],
         ["contact length (mm)", _f(o.contact_length), _f(m.contact_length), "", ""],
@@ -991,7 +996,7 @@ def _comparison_lines(cmp) -> list[str]:
                 f"release force, {d:g} mm (N)",
                 _f(a.peak),
                 _f(b.peak),
-                f"{cmp.release_gain(d):+.0f} %",
+                _percent(cmp.release_gain(d)),
                 f"+{lo:.0f} to +{hi:.0f} % (measured)",
             ]
         )

@@ -480,3 +480,19 @@ def test_mode_planar_with_an_out_of_plane_load_names_the_file(tmp_path):
         assert code == 1
         assert err.startswith(f"finray: error: {path}: loads[0].force = [0.05, 0.01, 0.0]: ")
         assert "out of the x-z plane" in err and "Traceback" not in err
+
+
+def test_comparison_table_says_n_a_for_an_unknown_release_force():
+    """A release trace without a solved point has a NaN peak: its change reads "n/a", not
+    "+nan %". (The table's other rows are plain numbers; no solve here.)"""
+    from types import SimpleNamespace
+
+    from finray_jax import studies
+
+    contact = SimpleNamespace(normal_force=2.0, contact_length=3.0, crossbeam_force=[0.1, 0, 0.2])
+    trace = lambda peak: SimpleNamespace(peak=peak)
+    grasp = SimpleNamespace(contact=contact)
+    cmp = studies.Comparison(6.0, grasp, grasp, {35.0: (trace(1.0), trace(float("nan")))})
+    lines = cli._comparison_lines(cmp)
+    row = next(line for line in lines if line.lstrip().startswith("release force, 35 mm"))
+    assert "n/a" in row and "nan %" not in row and "+0 %" in "\n".join(lines)
