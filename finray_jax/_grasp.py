@@ -651,10 +651,10 @@ def release_force(
     else:
         i = int(np.argmax(f))
         peak, peak_pull = float(f[i]), float(pulls[i])
-    if peak <= 1e-9 * float(np.max(np.abs(f), initial=0.0)):
-        # round-off where the contact fades out is not a holding force
-        peak, peak_pull = 0.0, 0.0
-        message += "; not held: at every step the fingers push the object along the pull"
+        if peak <= 1e-9 * float(np.max(np.abs(f))):
+            # round-off where the contact fades out is not a holding force
+            peak, peak_pull = 0.0, 0.0
+            message += "; not held: at every step the fingers push the object along the pull"
     return ReleaseTrace(
         pull=np.asarray(pulls),
         force=f,

@@ -1100,7 +1100,7 @@ def _cmd_clamp_study(args) -> int:
         tables.append((f"holding force (N, mu = {args.friction:g})", st.holding_force))
     head = ["object (mm)"] + [f"l_c={x:g}" for x in st.clamp_lengths]
     for k, (what, values) in enumerate(tables):
-        best = what.startswith(st.measure)
+        best = values is st.force  # (the table the best clamp length is picked by)
         rows = [
             [f"{d:g}"] + [_f(x) for x in row] + ([_f(b)] if best else [])
             for d, row, b in zip(st.diameters, values, st.best, strict=True)

@@ -390,10 +390,8 @@ def clamp_study_figure(study):
         if np.isfinite(best):
             ax.axvline(best, color=line.get_color(), ls=":", lw=1)
     ax.set_xlabel("back-beam clamp length l_c (mm)")
-    ylabel = study.measure + " (N)"
-    if study.holding_force is not None:
-        ylabel = f"{study.measure} (N, mu = {study.friction:g})"
-    ax.set_ylabel(ylabel)
+    mu = "" if study.holding_force is None else f", mu = {study.friction:g}"
+    ax.set_ylabel(f"{study.measure} (N{mu})")
     held = (
         "equal closing"
         if study.actuator_force is None

@@ -496,3 +496,35 @@ def test_comparison_table_says_n_a_for_an_unknown_release_force():
     lines = cli._comparison_lines(cmp)
     row = next(line for line in lines if line.lstrip().startswith("release force, 35 mm"))
     assert "n/a" in row and "nan %" not in row and "+0 %" in "\n".join(lines)
+
+
+def test_clamp_study_prints_the_best_clamp_length_beside_the_measured_force(tmp_path, monkeypatch):
+    """With --holding the best l_c is the holding force's, printed beside that table only;
+    with --actuator-force the closing reached is printed too. (A study stands in for the
+    solves.)"""
+    from finray_jax import studies
+
+    lc, dia = np.array([0.0, 10.0]), np.array([18.0, 35.0])
+    study = studies.ClampStudy(
+        dia,
+        lc,
+        60.0,
+        np.array([[1.0, 2.0], [3.0, 4.0]]),
+        closing=np.full((2, 2), 5.5),
+        actuator_force=15.0,
+        holding_force=np.array([[2.0, 1.0], [np.nan, np.nan]]),
+        friction=0.3,
+    )
+    monkeypatch.setattr(studies, "clamp_study", lambda *a, **k: study)
+    argv = ["clamp-study", "--out", str(tmp_path), "--actuator-force", "15", "--holding"]
+    code, out, err = run([*argv, "--friction", "0.3"])
+    assert code == 0, err
+    blocks = out.split("\n\n")
+    assert (
+        blocks[0].startswith("contact force (N) of the modified adaptor")
+        and "best" not in blocks[0]
+    )
+    assert blocks[1].startswith("closing (mm)") and "5.5" in blocks[1]
+    assert blocks[2].startswith("holding force (N, mu = 0.3)") and "best l_c" in blocks[2]
+    rows = blocks[2].splitlines()
+    assert rows[2].split()[-1] == "0" and rows[3].split()[-1] == "nan"
