@@ -124,18 +124,24 @@ def test_banded_lu_on_a_hidden_band_matrix():
 
 def _panels():
     """Panels (h, w) of the banded LU's steps: random, with ties and a zero column, and
-    one where every pivot search must swap (the largest entry is always the last row)."""
+    one where every pivot search must swap (the largest entry is always the last row).
+    All 12 x 20 (one compiled program each way); a larger one, 35 x 58 with 17 pivots,
+    compiles for 25 s more (slow)."""
     rng = np.random.default_rng(4)
-    random = rng.standard_normal((35, 58))
-    ties = np.round(rng.standard_normal((35, 58)))  # equal magnitudes: the first one wins
+    random = rng.standard_normal((12, 20))
+    ties = np.round(rng.standard_normal((12, 20)))  # equal magnitudes: the first one wins
     ties[:, 2] = 0.0  # a zero column: no pivot, left as it is
     swaps = rng.uniform(0.1, 0.2, (12, 20))
     swaps[np.arange(12), np.arange(12)] = 0.01
     swaps[-1, :6] = 5.0
-    return {"random": random, "ties-zero-column": ties, "swaps": swaps}
+    large = rng.standard_normal((35, 58))
+    return {"random": random, "ties-zero-column": ties, "swaps": swaps, "random-35x58": large}
 
 
-@pytest.mark.parametrize("name", ["random", "ties-zero-column", "swaps"])
+@pytest.mark.parametrize(
+    "name",
+    ["random", "ties-zero-column", "swaps", pytest.param("random-35x58", marks=pytest.mark.slow)],
+)
 def test_elementwise_panel_matches_lapack(name):
     """The GPU's element-wise LU step (`_panel_elementwise`, chosen off the CPU) gives
     LAPACK's factors, row order and determinant sign (`_panel_lapack`, the CPU's), also

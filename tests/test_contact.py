@@ -13,7 +13,7 @@ from helpers import global_balance, without_jacobian
 import finray_jax as fr
 import finray_jax.io
 from finray_jax._contact import penalty
-from finray_jax._grasp import _closing_step_cap, _Stepper
+from finray_jax._grasp import _closing_step_cap, _Stepper, _with_stiffness
 from finray_jax._solve import _direct_core
 
 # ---------------------------------------------------------------------------------------
@@ -288,6 +288,7 @@ def test_too_few_near_segments_is_reported():
     assert "Contact.near_segments" in f"{fr.RESULTS[sol.result]}"
 
 
+@pytest.mark.slow  # (97-106 s: three contact solves of their own compile)
 def test_a_warm_start_with_contact_begins_on_the_factors():
     """A warm start from a solution's Jacobian factors, with contact on the near segments:
     its first chord step reads the residual at the start (later ones read the residual
@@ -407,6 +408,7 @@ def test_mirrored_finger_grasps_symmetrically(finger1, grasps):
     assert float(g.contact.normal_force) == pytest.approx(float(ref.normal_force), rel=1e-8)
 
 
+@pytest.mark.slow  # (67 s: two adaptors' topologies, each with its continuation, compile)
 def test_unilateral_support_never_pulls(finger1):
     """Pull the back beam forward (away from the support): the support carries nothing and
     the answer equals the finger without a support; push it backward: the support pushes
@@ -517,22 +519,28 @@ def test_holding_force_grows_with_closing_and_with_friction(finger1):
     assert rough.peak > peaks[1]
 
 
-def test_friction_is_left_out_only_where_it_cannot_act(finger1, grasps):
+def _rough(f, mu=0.3):
+    values = (jnp.asarray(mu), jnp.asarray([0.0, 1.0]))
+    return eqx.tree_at(lambda f: (f.contact.friction, f.contact.slip_direction), f, values)
+
+
+def test_a_frictionless_topology_is_refused_where_friction_acts(finger1, grasps):
     """A grasp closes without slip, so its topology leaves the friction law out of the
-    rhs; a finger whose friction acts refuses that topology (naming both values), and
-    the grasp's stepper switches the law on (`with_friction`), matching a topology built
-    with friction. A frictionless finger gets the same answer with the law in or out."""
+    rhs; a finger whose friction acts refuses that topology, naming both values."""
     original, _ = grasps
     assert original.topology.contact.friction is False
-
-    def rough(f, mu=0.3):
-        values = (jnp.asarray(mu), jnp.asarray([0.0, 1.0]))
-        return eqx.tree_at(lambda f: (f.contact.friction, f.contact.slip_direction), f, values)
-
     with pytest.raises(fr.FingerError, match=r"contact.friction = 0.3 .*slip_direction"):
-        fr.solve_finger(rough(finger1), topology=original.topology)
+        fr.solve_finger(_rough(finger1), topology=original.topology)
     with pytest.raises(fr.FingerError, match="frictionless"):
-        fr.regrasp(original, rough(finger1))
+        fr.regrasp(original, _rough(finger1))
+
+
+@pytest.mark.slow  # (100 s: two frictional topologies compile)
+def test_friction_is_left_out_only_where_it_cannot_act(grasps):
+    """The grasp's stepper switches the friction law on where friction acts
+    (`with_friction`), matching a topology built with friction. A frictionless finger
+    gets the same answer with the law in or out."""
+    original, _ = grasps
 
     def solve(finger, topology):
         st = _Stepper(finger, "planar", original.integrator, fr.SolverOptions(), False, topology)
@@ -540,12 +548,12 @@ def test_friction_is_left_out_only_where_it_cannot_act(finger1, grasps):
         assert ok
         return st.topo, sol.unknowns
 
-    topo, a = solve(rough(original.finger), original.topology)
+    topo, a = solve(_rough(original.finger), original.topology)
     assert topo == fr.with_friction(original.topology) and topo.contact.friction
-    _, b = solve(rough(original.finger), None)
+    _, b = solve(_rough(original.finger), None)
     assert float(jnp.max(jnp.abs(a - b))) < 1e-12
     assert float(jnp.max(jnp.abs(a - original.solution.unknowns))) > 1e-6  # friction acts
-    smooth = rough(original.finger, 0.0)
+    smooth = _rough(original.finger, 0.0)
     topo, c = solve(smooth, original.topology)
     assert not topo.contact.friction
     _, d = solve(smooth, fr.with_friction(original.topology))
@@ -587,13 +595,20 @@ def test_modified_adaptor_without_friction_pushes_the_object_out(grasps):
     """With the front base pinned and the back beam supported, the front beam leans so
     that its pressure on the 18 mm cylinder has a component toward the tips: without
     friction nothing resists the pull (holding force 0, reported as such, not as the
-    round-off left where the contact fades); friction holds it."""
+    round-off left where the contact fades)."""
     _, modified = grasps
     tr = fr.release_force(modified, step=4.0)
     assert tr.force[0] < -0.05 * float(modified.contact.normal_force)
     assert np.all(tr.force <= 1e-9 * np.max(np.abs(tr.force)))
     assert tr.peak == 0.0 and "not held" in tr.message
+
+
+@pytest.mark.slow  # (58 s: the frictional topology of the modified grasp compiles)
+def test_friction_holds_the_object_on_the_modified_adaptor(grasps):
+    """The same pull with mu = 0.5 (see the test above): friction holds the cylinder."""
+    _, modified = grasps
     rough = fr.release_force(modified, step=4.0, friction=0.5)
+    assert rough.complete, rough.message
     assert rough.peak > 0.1 * float(modified.contact.normal_force)
 
 
@@ -627,17 +642,22 @@ def test_banded_newton_step_on_the_contact_jacobian(grasps):
 def test_chord_steps_with_contact_reach_newtons_root(finger1, grasps):
     """With contact a chord step reuses the residual that the backtracking of the step
     before evaluated where it ends. A stale residual would steer the chord steps to a
-    wrong point: the solve must reach Newton's root, and the residual the outputs
-    re-evaluate must be small."""
+    wrong point: the regrasp (a few chord steps from g's root) must reach the root that a
+    grasp from scratch on the same cuts and penalty finds (its own path: a closing
+    continuation of fresh linearisations), and the residual the outputs re-evaluate must
+    be small. (The reference shares the fixture's compiled programs: a solve with
+    `reuse_jacobian=False` compiles another 40 s.)"""
     original, _ = grasps
     chord, c_chord = fr.regrasp(original, finger1, 5.1)
-    newton, c_newton = fr.regrasp(
-        original, finger1, 5.1, options=fr.SolverOptions(reuse_jacobian=False)
+    stiff = _with_stiffness(finger1, original.stiffness)
+    scratch = fr.grasp(stiff, 5.1, stiffen=False, topology=original.topology)
+    assert chord.status == scratch.solution.status == "converged"
+    assert float(chord.max_residual) < 1e-8 and float(scratch.solution.max_residual) < 1e-8
+    assert float(c_chord.normal_force) == pytest.approx(
+        float(scratch.contact.normal_force), rel=1e-9
     )
-    assert chord.status == newton.status == "converged"
-    assert float(chord.max_residual) < 1e-8 and float(newton.max_residual) < 1e-8
-    assert float(c_chord.normal_force) == pytest.approx(float(c_newton.normal_force), rel=1e-9)
-    gap = np.max(np.abs(np.asarray(chord.front.position) - np.asarray(newton.front.position)))
+    front = np.asarray(scratch.solution.front.position)
+    gap = np.max(np.abs(np.asarray(chord.front.position) - front))
     assert gap < 1e-8
 
 

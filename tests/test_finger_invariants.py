@@ -588,6 +588,7 @@ def test_beyond_the_limit_load():
     assert FOLD_L2[0] < 2.5 * lam < FOLD_L2[1]
 
 
+@pytest.mark.slow  # (47 s: the solve, limit and refined-limit cores of a scaled finger)
 def test_the_fold_is_found_at_any_load_magnitude():
     """A million times L1 (50 kN) folds at a load factor of about 3.7e-5. The arc steps
     scale with the load (`FIRST_STEP_CHANGE`), so the solve reports beyond_limit_load (it
