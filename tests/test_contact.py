@@ -644,8 +644,8 @@ def test_chord_steps_with_contact_reach_newtons_root(finger1, grasps):
     before evaluated where it ends. A stale residual would steer the chord steps to a
     wrong point: the regrasp (a few chord steps from g's root) must reach the root that a
     grasp from scratch on the same cuts and penalty finds (its own path: a closing
-    continuation of fresh linearisations), and the residual the outputs re-evaluate must
-    be small. (The reference shares the fixture's compiled programs: a solve with
+    continuation from the undeformed finger), and the residual the outputs re-evaluate
+    must be small. (The reference shares the fixture's compiled programs: a solve with
     `reuse_jacobian=False` compiles another 40 s.)"""
     original, _ = grasps
     chord, c_chord = fr.regrasp(original, finger1, 5.1)
