@@ -20,7 +20,13 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
     continuation_failed = (
         "Load continuation could not reach the full load: the arc-length step fell below "
         "SolverOptions.min_arc_step without a fold being found. Try a smaller "
-        "SolverOptions.initial_arc_step or more SolverOptions.max_continuation_steps."
+        "SolverOptions.initial_arc_step or SolverOptions.min_arc_step."
+    )
+    continuation_steps_exhausted = (
+        "Load continuation took SolverOptions.max_continuation_steps arc-length steps "
+        "without reaching the full load or a fold, and the load factor was still rising. "
+        "Raise SolverOptions.max_continuation_steps (or max_arc_step). Loads that stiffen "
+        "the finger (a pull along a beam) may have no fold at any load factor."
     )
 
 
@@ -149,6 +155,11 @@ class Solution(eqx.Module):
     @property
     def status(self) -> str:
         return status_name(self.result)
+
+    @property
+    def message(self) -> str:
+        """Why the solve did not converge and what to try ("" when it converged)."""
+        return RESULTS[self.result]
 
     @property
     def converged(self):

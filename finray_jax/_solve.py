@@ -776,8 +776,14 @@ def _arc_start(y0, options: SolverOptions, active=True) -> _Arc:
     )
 
 
+def _stopped(s: _Arc):
+    """Why a continuation that neither reached its target nor found a fold stopped: its
+    arc step collapsed (done), or it ran out of steps while the load still rose."""
+    return RESULTS.where(s.done, RESULTS.continuation_failed, RESULTS.continuation_steps_exhausted)
+
+
 def _fold_result(s: _Arc):
-    failed = RESULTS.where(s.near_fold, RESULTS.beyond_limit_load, RESULTS.continuation_failed)
+    failed = RESULTS.where(s.near_fold, RESULTS.beyond_limit_load, _stopped(s))
     return RESULTS.where(s.reached, RESULTS.successful, failed)
 
 
@@ -991,7 +997,7 @@ def _limit_core(topo, integrator, options: SolverOptions, finger: Finger):
     problem = _nograd(_make_problem(topo, integrator, finger))
     y_und = problem.undeformed().reshape(-1)
     s = _continuation(problem, y_und, jnp.asarray(jnp.inf), options)
-    code = RESULTS.where(s.near_fold, RESULTS.successful, RESULTS.continuation_failed)
+    code = RESULTS.where(s.near_fold, RESULTS.successful, _stopped(s))
     return s.lam, _outputs(problem, s.y, s.lam, code, s.iterations)
 
 

@@ -616,9 +616,12 @@ def _cmd_limit(args) -> int:
     if found:
         print(f"limit load factor: {_f(factor, 6)} ({elapsed:.1f} s)")
     else:
+        steps = ""
+        if lim.solution.result == fr.RESULTS.continuation_steps_exhausted:
+            steps = f" after {kwargs['options'].max_continuation_steps} arc-length steps"
         print(
-            f"no limit load found: continuation stopped at load factor {_f(factor, 6)} "
-            f"without a fold ({elapsed:.1f} s). {fr.RESULTS[lim.solution.result]}"
+            f"no limit load found: continuation stopped at load factor {_f(factor, 6)}{steps} "
+            f"without a fold ({elapsed:.1f} s). {lim.solution.message}"
         )
     where = "at the limit" if found else "where the continuation stopped"
     for j, load in enumerate(finger.loads):

@@ -1158,6 +1158,7 @@ def solution_to_dict(sol, finger: Finger, *, settings: SolveSettings | None = No
         "mode": sol.mode,
         "status": sol.status,
         "converged": sol.status == "converged",
+        "message": sol.message,
         "load_factor": sol.load_factor,
         "iterations": sol.iterations,
         "max_residual": sol.max_residual,

@@ -28,6 +28,7 @@ SOLUTION_KEYS = {
     "units",
     "mode",
     "status",
+    "message",
     "load_factor",
     "iterations",
     "max_residual",
@@ -80,6 +81,7 @@ def test_solve_json_keys(ref_a_solved):
     _, _, _, data, _ = ref_a_solved
     assert SOLUTION_KEYS <= set(data)
     assert data["status"] == "converged" and data["converged"] is True
+    assert data["message"] == ""
     assert data["mode"] == "planar"
     assert data["finray_jax_version"] == fr.__version__
     assert data["units"]["length"] == "mm" and data["units"]["force"] == "N"
@@ -468,7 +470,14 @@ def test_limit_without_a_fold_says_where_it_stopped(tmp_path):
     assert code == 3, err
     assert "no limit load found" in stdout and "where the continuation stopped" in stdout
     assert "at the limit" not in stdout
-    assert json.loads(out.read_text())["found"] is False
+    # It ran out of arc-length steps with the load still rising (its step never
+    # collapsed), and says so.
+    assert "after 120 arc-length steps" in stdout, stdout
+    assert "max_continuation_steps" in stdout and "still rising" in stdout
+    assert "min_arc_step" not in stdout
+    data = json.loads(out.read_text())
+    assert data["found"] is False
+    assert data["solution"]["message"] == fr.RESULTS[fr.RESULTS.continuation_steps_exhausted]
 
 
 def test_mode_planar_with_an_out_of_plane_load_names_the_file(tmp_path):

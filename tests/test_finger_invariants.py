@@ -588,6 +588,21 @@ def test_beyond_the_limit_load():
     assert FOLD_L2[0] < 2.5 * lam < FOLD_L2[1]
 
 
+def test_a_continuation_out_of_steps_says_so():
+    """Three arc-length steps cannot reach a fold at 73 % of the load: the solve reports
+    that the continuation ran out of steps (not that its step collapsed), with the last
+    equilibrium on the path it traced."""
+    finger = _ref("L2").scale_loads(2.5 / 1.5)
+    options = fr.SolverOptions(max_continuation_steps=3)
+    sol = fr.solve_finger(finger, mode="planar", options=options)
+    assert sol.result == fr.RESULTS.continuation_steps_exhausted
+    assert sol.status == "failed"
+    assert "max_continuation_steps" in sol.message and "still rising" in sol.message
+    lam = float(sol.load_factor)
+    assert 0.0 < lam < 0.73
+    _assert_balanced(finger, sol, lam)
+
+
 @pytest.mark.slow  # (47 s: the solve, limit and refined-limit cores of a scaled finger)
 def test_the_fold_is_found_at_any_load_magnitude():
     """A million times L1 (50 kN) folds at a load factor of about 3.7e-5. The arc steps
