@@ -294,13 +294,15 @@ class _Stepper:
             self.failure = sol.result
         return sol, ok
 
-    def follow(self, at, t0, t1, init, first_step, min_step, prev=None, max_step=np.inf):
+    def follow(self, at, t0, t1, init, first_step, min_step, prev=None, max_step=np.inf, stop=None):
         """Equilibria from parameter t0 to t1 (finger = at(t)), each started from a linear
         extrapolation of the last two; returns (t, solution, ok) of the last accepted
         point. Steps grow after easy solves (up to max_step) and halve after failures.
 
         prev: (t, unknowns) of the path's point before `init` (continuing a path that an
-        earlier call followed: its `self.prev`), so the first step is extrapolated too."""
+        earlier call followed: its `self.prev`), so the first step is extrapolated too.
+        stop: called as stop(t, solution) at every accepted point; the path ends there
+        (ok) when it returns True."""
         t, sol, h = t0, init, min(first_step, max_step)
         while t < t1 - 1e-12:
             t_try = min(t + h, t1)
@@ -313,6 +315,8 @@ class _Stepper:
                     prev = (t, sol.unknowns)
                 h = min(_growth(int(trial.iterations)) * h, t1 - t0, max_step)
                 t, sol = t_try, trial
+                if stop is not None and stop(t, sol):
+                    break
             else:
                 h = 0.5 * h
                 if h < min_step:
@@ -498,66 +502,115 @@ def _closing_step_cap(finger: Finger) -> float:
     return 0.5 * min(depths) if depths else np.inf
 
 
-def _secant_point(lo, f_lo, hi, f_hi, target):
-    """The next trial closing in the bracket [lo, hi] (actuator forces f_lo < target <=
-    f_hi): the secant's root, kept at least 5 % of the bracket from either end."""
-    t = hi - (f_hi - target) * (hi - lo) / max(f_hi - f_lo, 1e-300)
-    return min(max(t, lo + 0.05 * (hi - lo)), hi - 0.05 * (hi - lo))
+# The first closing step (mm) of a search for the actuator force, from the closing where
+# the open finger first touches an object.
+FIRST_CLOSING_STEP = 0.5
+
+
+def _closing_to_contact(finger: Finger, samples: int = 401) -> float:
+    """A closing (mm) at which no object touches the open finger yet: the smallest gap
+    between an object and the main beams' surfaces at the start, less the samples'
+    spacing (a signed distance changes by at most the distance moved, so the gap between
+    samples is no smaller than that). Moving the objects by less than the gap leaves
+    them clear of the beams, whatever the direction."""
+    from ._geometry import main_beam_samples
+
+    s, p, h = (np.asarray(x) for x in main_beam_samples(finger, samples))
+    spacing = float(np.max(s[:, -1])) / (samples - 1)
+    gap = min(float(np.min(np.asarray(o.signed_distance(p)) - h)) for o in finger.objects)
+    return max(gap - spacing, 0.0)
 
 
 def _find_closing(stepper, at, w, target, max_step=np.inf, start=None):
-    """Closing displacement at which the actuator force equals `target` (secant on a
-    bracket, each trial warm started; path steps of at most max_step).
+    """Closing displacement at which the actuator force equals `target` (path steps of at
+    most max_step). Returns (t, solution, ok): on a failure, the last accepted state.
+
+    The force grows with the closing. So the path is followed from the open finger (or
+    from `start`) as a prescribed closing is, until it passes the target: its last two
+    points bracket it. The bracket then closes by regula falsi with the Illinois rule
+    (an end kept twice in a row has its excess force halved), each trial started from
+    the nearer end's state along the chord to the other's (one solve, the bracket being
+    one path step).
 
     start: (closing, actuator force, solution) of a solved state of this finger (the
-    closing found before the contact was stiffened): the bracket is built from it, not
-    grown from 0.
+    closing found before the contact was stiffened): the path starts there, toward the
+    target (downward when its force is already past it)."""
 
-    Each secant trial starts from the nearer end of the bracket (the solved state there;
-    at a lower end of 0, the undeformed finger) and, when that is more than max_step
-    away, follows the path to it in steps of at most max_step, as a prescribed closing
-    does. Returns (t, solution, ok): on a failure, the last accepted state."""
-    lo, f_lo, sol_lo = 0.0, 0.0, None
-    hi, sol = 1.0, None
-    bracketed = start is not None and start[1] >= target
-    if bracketed:
-        hi, f_hi, sol = start  # (the bracket is [0, start])
-    elif start is not None:
-        lo, f_lo, sol_lo = start
-        hi = 1.25 * lo + 1e-3
-    # Grow the bracket until the actuator force exceeds the target.
-    while not bracketed:
-        t, sol, ok = stepper.follow(at, lo, hi, sol_lo, hi - lo, 1e-4, max_step=max_step)
-        if not ok:
-            return t, sol, False
-        f_hi = float(contact_result(at(hi), sol, w).actuator_force)
-        bracketed = f_hi >= target
-        if bracketed:
-            break
-        lo, f_lo, sol_lo = hi, f_hi, sol
-        hi *= 2.0
-        if hi > 1e3:
-            return t, sol, False
-    sol_hi = sol
+    def force(t, sol):
+        return float(contact_result(at(t), sol, w).actuator_force)
+
+    tol = 1e-8 * max(target, 1e-3)
+    if start is None and target <= tol:  # (the open finger: no closing needed)
+        return 0.0, None, True
+    t0, f0, sol0 = (_closing_to_contact(at(0.0)), 0.0, None) if start is None else start
+    if abs(f0 - target) <= tol:
+        return t0, sol0, True
+    up = f0 < target
+    closing = (lambda u: t0 + u) if up else (lambda u: t0 - u)
+    seen = [(t0, f0, sol0)]  # (closing, force, solution) of the path's accepted points
+
+    def passed(u, sol):
+        t = closing(u)
+        seen.append((t, force(t, sol), sol))
+        return (seen[-1][1] >= target) == up
+
+    if start is None:
+        first = FIRST_CLOSING_STEP
+    else:  # (as if the force were proportional to the closing)
+        first = 1.5 * t0 * abs(target - f0) / max(f0, 1e-300) + 1e-4
+    u, sol, ok = stepper.follow(
+        lambda u: at(closing(u)),
+        0.0,
+        1e3 if up else t0,
+        sol0,
+        first,
+        1e-4,
+        max_step=max_step,
+        stop=passed,
+    )
+    if not ok or (seen[-1][1] >= target) != up:  # (a failed step, or the target not passed)
+        return closing(u), sol, False
+    (lo, f_lo, sol_lo), (hi, f_hi, sol_hi) = sorted(seen[-2:], key=lambda e: e[0])
+    for t, f, s in ((lo, f_lo, sol_lo), (hi, f_hi, sol_hi)):
+        if abs(f - target) <= tol and s is not None:
+            return t, s, True
+    if sol_lo is None:  # (the open finger)
+        sol_lo, _ = stepper.solve(at(lo), None)
+    # Regula falsi with the Illinois rule on [lo, hi]: g = force - target, g_lo < 0 <= g_hi.
+    g_lo, g_hi, kept = f_lo - target, f_hi - target, 0
+    t = hi
     for _ in range(40):
-        t = _secant_point(lo, f_lo, hi, f_hi, target)
-        if t - lo <= hi - t:  # (from lo upward: the path of a prescribed closing)
-            t_got, sol, ok = stepper.follow(at, lo, t, sol_lo, t - lo, 1e-4, max_step=max_step)
+        t = hi - g_hi * (hi - lo) / max(g_hi - g_lo, 1e-300)
+        if t - lo <= hi - t:  # from lo upward, started along the chord to hi
+            t_got, sol, ok = stepper.follow(
+                at, lo, t, sol_lo, t - lo, 1e-4, prev=(hi, sol_hi.unknowns), max_step=max_step
+            )
         else:  # from hi downward
             u, sol, ok = stepper.follow(
-                lambda u, hi=hi: at(hi - u), 0.0, hi - t, sol_hi, hi - t, 1e-4, max_step=max_step
+                lambda u, hi=hi: at(hi - u),
+                0.0,
+                hi - t,
+                sol_hi,
+                hi - t,
+                1e-4,
+                prev=(hi - lo, sol_lo.unknowns),
+                max_step=max_step,
             )
             t_got = hi - u
         if not ok:
             return t_got, sol, False
         t = t_got
-        f = float(contact_result(at(t), sol, w).actuator_force)
-        if abs(f - target) <= 1e-8 * max(target, 1e-3):
+        g = force(t, sol) - target
+        if abs(g) <= tol:
             return t, sol, True
-        if f < target:
-            lo, f_lo, sol_lo = t, f, sol
+        if g < 0.0:
+            lo, sol_lo, g_lo = t, sol, g
+            kept = min(kept, 0) - 1  # (hi kept again)
+            g_hi *= 0.5 if kept <= -2 else 1.0
         else:
-            hi, f_hi, sol_hi = t, f, sol
+            hi, sol_hi, g_hi = t, sol, g
+            kept = max(kept, 0) + 1  # (lo kept again)
+            g_lo *= 0.5 if kept >= 2 else 1.0
     return t, sol, False  # (the bracket did not close on the target: not found)
 
 

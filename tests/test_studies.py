@@ -133,6 +133,40 @@ def test_grasp_by_actuator_force_meets_the_force_after_stiffening():
     assert float(by_force.closing) == pytest.approx(6.0, abs=0.01)
 
 
+def test_grasp_by_actuator_force_finds_the_closing_that_gives_it():
+    """With a fixed penalty, grasp(actuator_force=F) at the F of a 4 mm closing closes 4
+    mm again; a zero force leaves the finger open (closing 0, no contact)."""
+    design = _modified(18.0, 10.0)
+    g = studies.grasp(design, 4.0, stiffen=False)
+    force = float(g.contact.actuator_force)
+    assert force > 0
+    by_force = studies.grasp(design, actuator_force=force, stiffen=False)
+    assert by_force.converged
+    assert float(by_force.contact.actuator_force) == pytest.approx(force, rel=1e-7)
+    assert float(by_force.closing) == pytest.approx(4.0, abs=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(by_force.solution.unknowns), np.asarray(g.solution.unknowns), atol=1e-6
+    )
+    none = studies.grasp(design, actuator_force=0.0, stiffen=False)
+    assert none.converged and float(none.closing) == 0.0
+    assert float(none.contact.normal_force) == 0.0
+
+
+def test_the_open_finger_is_clear_of_the_objects_before_the_estimated_contact():
+    """_closing_to_contact: a closing that leaves a cylinder 2 mm in front of the straight
+    front beam clear of it, short of that 2 mm by at most the samples' spacing."""
+    from finray_jax._geometry import main_beam_samples
+    from finray_jax._grasp import _closing_to_contact, _moved
+
+    design = studies.with_object(_finger(), 18.0, clearance=2.0)
+    gap = _closing_to_contact(design)
+    assert 2.0 - 130.0 / 400 <= gap <= 2.0
+    for closing in (gap, 2.0 - 1e-9):  # clear up to the first contact, however sampled
+        moved = _moved(design, np.array([closing, 0.0]))
+        _, p, h = (np.asarray(x) for x in main_beam_samples(moved, 24001))
+        assert np.min(np.asarray(moved.objects[0].signed_distance(p)) - h) > 0
+
+
 def _modified(diameter, clamp_length):
     ad = studies.Adaptor(front_base="pinned", back_clamp_length=clamp_length, support_length=60.0)
     return studies.with_adaptor(studies.with_object(_finger(), diameter), ad)
