@@ -1,8 +1,9 @@
 """Grasp benchmarks (issue: grasping): one full grasp solve (closing onto the object and
-beyond) and one release-force trace, on the default finger (Finger-1) with an 18 mm
-cylinder, planar, pinned to one core. Compile time is reported apart; steady times are
-medians of repeats. As an in-run baseline the same machine's plain planar ref-A L1 solve
-(no contact) is timed too, so ratios survive a noisy machine.
+beyond), the same grasp by the actuator force it needed, and one release-force trace, on
+the default finger (Finger-1) with an 18 mm cylinder, planar, pinned to one core. Compile
+time is reported apart; steady times are medians of repeats. As an in-run baseline the
+same machine's plain planar ref-A L1 solve (no contact) is timed too, so ratios survive a
+noisy machine.
 
     python benchmarks/grasp.py [--quick]
 """
@@ -65,6 +66,17 @@ def main():
             "holding_force_N": tr.peak,
             "targets": {"grasp_s": 0.05, "release_trace_s": 1.0},
         }
+        # The same grasp by the actuator force it needed: the closing is searched for.
+        force = float(g.contact.actuator_force)
+        by_force = fr.grasp(f, actuator_force=force)
+        case["actuator_grasp"] = {
+            "actuator_force_N": force,
+            "grasp_s": median_time(
+                lambda f=f, F=force: fr.grasp(f, actuator_force=F), repeats=repeats, min_total=0
+            )[0],
+            "grasp_solves": by_force.steps,
+            "closing_mm": float(by_force.closing),
+        }
         # In-run baseline: the same grasp and release trace without chord steps.
         g_n = fr.grasp(f, 6.0, options=NEWTON)
         fr.release_force(g_n, step=2.0, options=NEWTON)
@@ -84,6 +96,12 @@ def main():
             f"{name:9s} grasp {1e3 * grasp_t:8.1f} ms ({g.steps} Newton solves; first call "
             f"{compile_s:.1f} s), release trace {release_t:.2f} s ({len(tr.pull)} steps), "
             f"contact force {case['normal_force_N']:.3f} N, holding {tr.peak:.3f} N"
+        )
+        ag = case["actuator_grasp"]
+        print(
+            f"{'':9s} by actuator force {ag['actuator_force_N']:.3f} N: grasp "
+            f"{1e3 * ag['grasp_s']:8.1f} ms ({ag['grasp_solves']} solves, closing "
+            f"{ag['closing_mm']:.4f} mm)"
         )
         nw = case["newton_only"]
         print(
