@@ -388,7 +388,8 @@ def grasp(
 
     closing: displacement (mm) of the finger's base toward the objects along `direction`;
         or actuator_force: the force (N) the actuator applies along `direction` (the
-        closing displacement is then found by a safeguarded secant iteration).
+        closing displacement is then found on the closing path, by regula falsi on the
+        step that passes the force).
     stiffen: when the largest penetration exceeds `Contact.max_penetration` of the front
         beam's thickness, raise the penalty stiffness and solve again (warm started).
     topology: the segment table of an earlier grasp of the same finger (its `.topology`):
