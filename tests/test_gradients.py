@@ -564,9 +564,12 @@ def test_rigid_column_shares_the_length_direction(mode):
 
     f = design.set_design(fr.ref_finger_a("L3"), {"adaptor.back_clamp_length": 7.0})
     f = f.with_loads(*f.loads, DistributedLoad(1, (0.0, 20.0), (0.3, 0.0, 0.2)))
-    topo = fr.topology_of(f, mode)
+    inside = r"loads\[1\] .* lies partly inside the back beam's clamped length 7.0 mm"
+    with pytest.warns(fr.FingerWarning, match=inside):
+        topo = fr.topology_of(f, mode)
     integ = fr.Integrator()
-    y = fr.solve_finger(f, topology=topo).unknowns
+    with pytest.warns(fr.FingerWarning, match=inside):
+        y = fr.solve_finger(f, topology=topo).unknowns
     p = _solve._nograd(_solve._make_problem(topo, integ, f))
     Y0 = p.start_states(y.reshape(p.table.length.shape[0], -1))
     Q = p.params(1.0)
