@@ -942,6 +942,12 @@ def _cmd_grasp(args) -> int:
     t0 = time.perf_counter()
     g = fr.grasp(finger, **gs.grasp_kwargs())
     print("\n".join(_grasp_lines(g, settings.name or args.finger)))
+    if gs.actuator_force is not None and not g.converged:
+        print(
+            f"  the actuator force {_f(gs.actuator_force)} N was not reached: the closing "
+            f"stopped at {_f(g.closing)} mm, where the actuator applies "
+            f"{_f(g.contact.actuator_force)} N"
+        )
     print(f"  solved in {time.perf_counter() - t0:.2f} s")
     trace = None
     if args.release and g.converged:

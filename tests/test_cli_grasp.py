@@ -25,6 +25,23 @@ def test_grasp_command_writes_contact_outputs(tmp_path):
     assert png.stat().st_size > 10_000
 
 
+def test_an_actuator_force_out_of_reach_says_so(tmp_path):
+    """20 N is more than Finger-1 applies to the 18 mm cylinder frictionless (its
+    closing path fails near 70 mm, at under 3 N): exit 3, with the force reached where
+    the closing stopped."""
+    path = tmp_path / "strong.toml"
+    text = pathlib.Path(GRASP).read_text()
+    assert "\nclosing = 6.0" in text
+    path.write_text(text.replace("\nclosing = 6.0", "\nactuator_force = 20.0"))
+    code, stdout, err = run(["grasp", str(path)])
+    assert code == 3, stdout + err
+    assert "failed at closing" in stdout
+    line = next(x for x in stdout.splitlines() if "was not reached" in x)
+    assert line.startswith("  the actuator force 20 N was not reached: the closing stopped at")
+    reached = float(line.rsplit("applies ", 1)[1].split()[0])
+    assert 0 < reached < 20
+
+
 def test_solve_on_a_grasp_file_points_at_finray_grasp(monkeypatch):
     """The note comes before the solve, which a stand-in replaces here (a finger with
     objects compiles its own program, ~40 s; `finray solve` itself: test_cli)."""
