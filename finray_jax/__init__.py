@@ -7,6 +7,7 @@ import jax as _jax
 if _os.environ.get("FINRAY_NO_AUTO_X64", "0") != "1":
     _jax.config.update("jax_enable_x64", True)
 
+from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._cantilever import CantileverSolution as CantileverSolution
 from ._cantilever import solve_cantilever as solve_cantilever
 from ._contact import Contact as Contact

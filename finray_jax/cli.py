@@ -20,6 +20,7 @@ import numpy as np
 import finray_jax as fr
 
 from . import io as fio
+from ._cache import enable_compilation_cache
 from ._finger import loads_are_zero
 from .design import DesignError
 from .studies import StudyRecordError
@@ -119,22 +120,6 @@ class _Parser(argparse.ArgumentParser):
 # --------------------------------------------------------------------------------------
 # Set-up
 # --------------------------------------------------------------------------------------
-
-
-def enable_compilation_cache() -> str | None:
-    """Turn on JAX's persistent compilation cache (CLI only, never the library).
-
-    Directory: $FINRAY_CACHE_DIR, else ~/.cache/finray_jax/jax. FINRAY_NO_CACHE=1 disables
-    it. Returns the directory, or None when disabled.
-    """
-    if os.environ.get("FINRAY_NO_CACHE", "0").strip() not in ("", "0"):
-        return None
-    import jax
-
-    path = os.environ.get("FINRAY_CACHE_DIR") or os.path.expanduser("~/.cache/finray_jax/jax")
-    jax.config.update("jax_compilation_cache_dir", path)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    return path
 
 
 # Commands that solve many designs at once (vmapped on an accelerator); the others solve

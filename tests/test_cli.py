@@ -375,15 +375,16 @@ def test_compilation_cache_settings(monkeypatch, tmp_path):
     old_min = jax.config.jax_persistent_cache_min_compile_time_secs
     try:
         monkeypatch.setenv("FINRAY_NO_CACHE", "1")
-        assert cli.enable_compilation_cache() is None
+        assert fr.enable_compilation_cache() is None
         monkeypatch.setenv("FINRAY_NO_CACHE", "0")
         monkeypatch.setenv("FINRAY_CACHE_DIR", str(tmp_path / "cache"))
-        assert cli.enable_compilation_cache() == str(tmp_path / "cache")
+        assert fr.enable_compilation_cache() == str(tmp_path / "cache")
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")
         assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.5
         monkeypatch.delenv("FINRAY_CACHE_DIR")
         expected = os.path.expanduser("~/.cache/finray_jax/jax")
-        assert cli.enable_compilation_cache() == expected
+        assert fr.enable_compilation_cache() == expected
+        assert cli.enable_compilation_cache is fr.enable_compilation_cache  # (the CLI's)
     finally:
         jax.config.update("jax_compilation_cache_dir", old_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", old_min)
