@@ -924,6 +924,12 @@ def _cmd_grasp(args) -> int:
         raise UserError(f"{args.finger} has no [grasp] table (closing or actuator_force)")
     _check_grasp_objects(args.finger, finger, settings)  # (naming the file and the key)
     gs = settings.grasp
+    how = (
+        f"closing {_f(gs.closing)} mm"
+        if gs.actuator_force is None
+        else f"actuator force {_f(gs.actuator_force)} N"
+    )
+    _progress(f"grasp, {how}")
     t0 = time.perf_counter()
     g = fr.grasp(finger, **gs.grasp_kwargs())
     print("\n".join(_grasp_lines(g, settings.name or args.finger)))
@@ -936,6 +942,7 @@ def _cmd_grasp(args) -> int:
     print(f"  solved in {time.perf_counter() - t0:.2f} s")
     trace = None
     if args.release and g.converged:
+        _progress(f"release trace, pull steps of {_f(gs.pull_step)} mm")
         trace = fr.release_force(g, step=gs.pull_step, friction=args.friction)
         print(
             f"  holding force     {_f(trace.peak)} N at pull {_f(trace.peak_pull)} mm "

@@ -16,6 +16,7 @@ def test_grasp_command_writes_contact_outputs(tmp_path):
     code, stdout, err = run(["grasp", GRASP, "--out", str(out), "--plot", str(png)])
     assert code == 0, err
     assert "contact force" in stdout and "actuator force" in stdout
+    assert "  ... grasp, closing 6 mm" in err  # (on stderr, before the solve)
     d = json.loads(out.read_text())
     assert d["status"] == "converged"
     c = d["contact"]
