@@ -522,16 +522,77 @@ def _closing_to_contact(finger: Finger, samples: int = 401) -> float:
     return max(gap - spacing, 0.0)
 
 
+def _solve_between(stepper, at, t, near, far, max_step):
+    """The equilibrium at closing t, followed from the solved point `near` = (closing,
+    solution), started along the chord to the solved point `far` (the two bracket t, or
+    far lies beyond near). Returns (t reached, solution, ok)."""
+    (t_n, sol_n), (t_f, sol_f) = near, far
+    if t >= t_n:
+        return stepper.follow(
+            at, t_n, t, sol_n, t - t_n, 1e-4, prev=(t_f, sol_f.unknowns), max_step=max_step
+        )
+    u, sol, ok = stepper.follow(
+        lambda u: at(t_n - u),
+        0.0,
+        t_n - t,
+        sol_n,
+        t_n - t,
+        1e-4,
+        prev=(t_n - t_f, sol_f.unknowns),
+        max_step=max_step,
+    )
+    return t_n - u, sol, ok
+
+
+# A peak of the actuator force is refined until its bracket is this narrow (mm of closing).
+PEAK_WIDTH = 0.02
+
+
+def _peak_force(stepper, at, force, seen, max_step, rounds=16):
+    """The largest actuator force near the highest of the path's points `seen` (closing,
+    force, solution), by successive parabolas through the best point and two around it,
+    with a golden-section step instead where the parabola's vertex falls outside the
+    bracket or too near its best point (each point one solve), until the bracket is
+    PEAK_WIDTH wide. Returns (closing, solution) of the best point."""
+    k = int(np.argmax([f for _, f, _ in seen]))
+    a, b, c = seen[k - 1], seen[k], seen[k + 1]
+    golden = 0.5 * (3.0 - np.sqrt(5.0))
+    for _ in range(rounds):
+        (ta, fa, _), (tb, fb, sb), (tc, fc, _) = a, b, c
+        if tc - ta <= PEAK_WIDTH:
+            break
+        den = (tb - ta) * (fb - fc) - (tb - tc) * (fb - fa)
+        num = (tb - ta) ** 2 * (fb - fc) - (tb - tc) ** 2 * (fb - fa)
+        t = tb - 0.5 * num / den if den else tb
+        if not ta < t < tc or abs(t - tb) < 0.05 * (tc - ta):  # (golden section instead)
+            t = tb + golden * ((tc - tb) if tc - tb > tb - ta else (ta - tb))
+        side = a if t < tb else c
+        if sb is None or side[2] is None:
+            break
+        t_got, sol, ok = _solve_between(stepper, at, t, (tb, sb), (side[0], side[2]), max_step)
+        if not ok:
+            break
+        point = (t_got, force(t_got, sol), sol)
+        if point[1] > fb:  # the new best point, between b and the side it lies on
+            a, b, c = (a, point, b) if t_got < tb else (b, point, c)
+        else:  # b stays the best; the new point closes the bracket on it
+            a, c = (point, c) if t_got < tb else (a, point)
+    return b[0], b[2]
+
+
 def _find_closing(stepper, at, w, target, max_step=np.inf, start=None):
     """Closing displacement at which the actuator force equals `target` (path steps of at
-    most max_step). Returns (t, solution, ok): on a failure, the last accepted state.
+    most max_step). Returns (t, solution, ok): on a failure, the last accepted state, or
+    where the force peaked below the target (`RESULTS.actuator_force_not_reached`).
 
-    The force grows with the closing. So the path is followed from the open finger (or
-    from `start`) as a prescribed closing is, until it passes the target: its last two
-    points bracket it. The bracket then closes by regula falsi with the Illinois rule
-    (an end kept twice in a row has its excess force halved), each trial started from
-    the nearer end's state along the chord to the other's (one solve, the bracket being
-    one path step).
+    The force usually grows with the closing. So the path is followed from the open
+    finger (or from `start`) as a prescribed closing is, until it passes the target: its
+    last two points bracket it. The bracket then closes by regula falsi with the Illinois
+    rule (an end kept twice in a row has its excess force halved), each trial started
+    from the nearer end's state along the chord to the other's (one solve, the bracket
+    being one path step). Where the finger gives way instead (the force rises to a peak
+    below the target, then falls), the path goes on until it fails, and the answer is the
+    peak, refined by parabolas.
 
     start: (closing, actuator force, solution) of a solved state of this finger (the
     closing found before the contact was stiffened): the path starts there, toward the
@@ -570,6 +631,11 @@ def _find_closing(stepper, at, w, target, max_step=np.inf, start=None):
         stop=passed,
     )
     if not ok or (seen[-1][1] >= target) != up:  # (a failed step, or the target not passed)
+        forces = [f for _, f, _ in seen]
+        if up and 0 < int(np.argmax(forces)) < len(seen) - 1:  # the finger gave way
+            t, sol = _peak_force(stepper, at, force, seen, max_step)
+            stepper.failure = RESULTS.actuator_force_not_reached
+            return t, sol, False
         return closing(u), sol, False
     (lo, f_lo, sol_lo), (hi, f_hi, sol_hi) = sorted(seen[-2:], key=lambda e: e[0])
     for t, f, s in ((lo, f_lo, sol_lo), (hi, f_hi, sol_hi)):
@@ -582,25 +648,11 @@ def _find_closing(stepper, at, w, target, max_step=np.inf, start=None):
     t = hi
     for _ in range(40):
         t = hi - g_hi * (hi - lo) / max(g_hi - g_lo, 1e-300)
-        if t - lo <= hi - t:  # from lo upward, started along the chord to hi
-            t_got, sol, ok = stepper.follow(
-                at, lo, t, sol_lo, t - lo, 1e-4, prev=(hi, sol_hi.unknowns), max_step=max_step
-            )
-        else:  # from hi downward
-            u, sol, ok = stepper.follow(
-                lambda u, hi=hi: at(hi - u),
-                0.0,
-                hi - t,
-                sol_hi,
-                hi - t,
-                1e-4,
-                prev=(hi - lo, sol_lo.unknowns),
-                max_step=max_step,
-            )
-            t_got = hi - u
+        ends = ((lo, sol_lo), (hi, sol_hi))
+        near, far = ends if t - lo <= hi - t else ends[::-1]
+        t, sol, ok = _solve_between(stepper, at, t, near, far, max_step)
         if not ok:
-            return t_got, sol, False
-        t = t_got
+            return t, sol, False
         g = force(t, sol) - target
         if abs(g) <= tol:
             return t, sol, True

@@ -22,6 +22,12 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "SolverOptions.min_arc_step without a fold being found. Try a smaller "
         "SolverOptions.initial_arc_step or SolverOptions.min_arc_step."
     )
+    actuator_force_not_reached = (
+        "The actuator force was not reached: along the closing path the force rose to a "
+        "peak below it and then fell (the finger gives way). The grasp returned is the one "
+        "at that peak (its closing and contact.actuator_force): the most this finger "
+        "applies to the object."
+    )
     continuation_steps_exhausted = (
         "Load continuation took SolverOptions.max_continuation_steps arc-length steps "
         "without reaching the full load or a fold, and the load factor was still rising. "

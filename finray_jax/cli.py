@@ -1114,6 +1114,8 @@ def _cmd_clamp_study(args) -> int:
             + f"{what} of the modified adaptor, support up to {st.support_length:g} mm, {held}"
         )
         print("\n".join(_table(head + (["best l_c"] if best else []), rows)))
+    if not np.all(np.isfinite(st.normal_force)):
+        print("(nan: that grasp did not converge; the '...' line of its solve says why)")
     png = os.path.join(args.out, "clamp_study.png")
     save_figure(clamp_study_figure(st), png)
     print(f"wrote {png}\nwrote {js}")

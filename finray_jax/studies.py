@@ -18,6 +18,7 @@ from . import io as fio
 from ._finger import Adaptor, Finger
 from ._grasp import GraspSolution, ReleaseTrace, grasp, release_force
 from ._objects import Circle
+from ._solution import RESULTS
 
 # The paper's figures (quoted for comparison only).
 PAPER_CONTACT_FORCE_GAIN = 260.0  # %, simulated, 18 mm object (Fig. 4)
@@ -180,6 +181,17 @@ class ClampStudy:
         return np.where(np.isfinite(self.force).any(axis=1), best, np.nan)
 
 
+def _why_not(g: GraspSolution, actuator_force) -> str:
+    """Why a grasp of a study did not converge, in a few words."""
+    if g.solution.result == RESULTS.actuator_force_not_reached:
+        return (
+            f"the actuator force peaks at {float(g.contact.actuator_force):.4g} N, at "
+            f"closing {float(g.closing):.4g} mm, below {actuator_force:g} N"
+        )
+    text = " ".join(RESULTS[g.solution.result].split())
+    return text[: text.find(". ") + 1] if ". " in text else text
+
+
 class StudyRecordError(ValueError):
     """A study's record file that cannot be read as one (the CLI reports it, no traceback)."""
 
@@ -325,6 +337,8 @@ def clamp_study(
             ad = Adaptor(front_base="pinned", back_clamp_length=l, support_length=support_length)
             say(f"{d:g} mm object, l_c = {l:g} mm")
             g = grasp(with_adaptor(base, ad), **how)
+            if not g.converged:
+                say(f"{d:g} mm object, l_c = {l:g} mm: no grasp ({_why_not(g, actuator_force)})")
             if g.converged:
                 cells["normal_force"][i, j] = float(g.contact.normal_force)
                 cells["closing_reached"][i, j] = float(g.closing)

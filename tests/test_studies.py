@@ -152,6 +152,25 @@ def test_grasp_by_actuator_force_finds_the_closing_that_gives_it():
     assert float(none.contact.normal_force) == 0.0
 
 
+def test_an_actuator_force_beyond_the_fingers_peak_returns_the_peak():
+    """Finger-1 on the modified adaptor with the back beam not clamped (l_c = 0) pushes
+    the 18 mm cylinder with at most about 14.56 N, near 5.4 mm of closing (the force then
+    falls: the finger gives way). Asked for 15 N, the grasp fails with
+    actuator_force_not_reached and returns the peak: the force there beats the closings
+    0.05 mm to either side, and the study says so in its progress line."""
+    design = _modified(18.0, 0.0)
+    g = studies.grasp(design, actuator_force=15.0)
+    assert not g.converged
+    assert g.solution.result == studies.RESULTS.actuator_force_not_reached
+    peak, t = float(g.contact.actuator_force), float(g.closing)
+    assert 14.0 < peak < 15.0 and 4.5 < t < 6.5
+    for side in (t - 0.05, t + 0.05):
+        near = studies.grasp(design, side, stiffen=False)
+        assert near.converged and float(near.contact.actuator_force) < peak
+    why = studies._why_not(g, 15.0)
+    assert why.startswith(f"the actuator force peaks at {peak:.4g} N, at closing {t:.4g} mm")
+
+
 def test_the_open_finger_is_clear_of_the_objects_before_the_estimated_contact():
     """_closing_to_contact: a closing that leaves a cylinder 2 mm in front of the straight
     front beam clear of it, short of that 2 mm by at most the samples' spacing."""
