@@ -937,11 +937,12 @@ def _cmd_grasp(args) -> int:
         float(g.contact.actuator_force) < (1.0 - 1e-6) * gs.actuator_force
     )
     if short and not g.converged:  # (not a failure after the force was met)
-        print(
-            f"  the actuator force {_f(gs.actuator_force)} N was not reached: the closing "
-            f"stopped at {_f(g.closing)} mm, where the actuator applies "
-            f"{_f(g.contact.actuator_force)} N"
-        )
+        where = f"{_f(g.contact.actuator_force)} N at closing {_f(g.closing)} mm"
+        asked = f"short of the {_f(gs.actuator_force)} N asked"
+        if g.solution.result == fr.RESULTS.actuator_force_not_reached:
+            print(f"  peak actuator force {where}, {asked}")
+        else:
+            print(f"  the closing path stopped at {where}, {asked}")
     print(f"  solved in {time.perf_counter() - t0:.2f} s")
     trace = None
     if args.release and g.converged:

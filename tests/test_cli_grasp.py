@@ -27,9 +27,8 @@ def test_grasp_command_writes_contact_outputs(tmp_path):
 
 
 def test_an_actuator_force_out_of_reach_says_so(tmp_path):
-    """20 N is more than Finger-1 applies to the 18 mm cylinder frictionless (its
-    closing path fails near 70 mm, at under 3 N): exit 3, with the force reached where
-    the closing stopped."""
+    """20 N is more than Finger-1 applies to the 18 mm cylinder frictionless (its force
+    peaks near 10.7 N): exit 3, with the closing and the force at the peak."""
     path = tmp_path / "strong.toml"
     text = pathlib.Path(GRASP).read_text()
     assert "\nclosing = 6.0" in text
@@ -37,10 +36,11 @@ def test_an_actuator_force_out_of_reach_says_so(tmp_path):
     code, stdout, err = run(["grasp", str(path)])
     assert code == 3, stdout + err
     assert "failed at closing" in stdout
-    line = next(x for x in stdout.splitlines() if "was not reached" in x)
-    assert line.startswith("  the actuator force 20 N was not reached: the closing stopped at")
-    reached = float(line.rsplit("applies ", 1)[1].split()[0])
-    assert 0 < reached < 20
+    assert "The actuator force was not reached: along the closing path the force rose" in stdout
+    line = next(x for x in stdout.splitlines() if x.startswith("  peak actuator force"))
+    assert line.endswith("mm, short of the 20 N asked"), line
+    peak = float(line.split()[3])
+    assert 10 < peak < 11
 
 
 def test_solve_on_a_grasp_file_points_at_finray_grasp(monkeypatch):
