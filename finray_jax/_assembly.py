@@ -80,6 +80,12 @@ class Topology:
     def n_loads(self):
         return len({j for evs in self.events for kind, j in evs if kind in ("point", "dist_start")})
 
+    @property
+    def distributed(self) -> bool:
+        """Whether a distributed load acts: only then does a segment's flow depend on the
+        load factor (point loads are jumps between segments)."""
+        return any(kind == "dist_start" for evs in self.events for kind, _ in evs)
+
     @functools.cached_property
     def band(self) -> BandPlan:
         """Banded ordering of the shooting Jacobian (see `_banded`)."""

@@ -559,15 +559,36 @@ def _bordered(problem, lam, y, linear_solver):
     sign of det J: what a Newton step on the continuation's bordered system and the path's
     tangent need.
 
-    In 3-D one forward pass integrates every segment with the derivatives of its end state
-    in the start state's 9 directions and in the load factor (`flow_jacobians` along the
-    load direction of the parameters): J from the colour seeds as in `_linearise`, dr/dlam
-    from the lam direction. With a pass of its own for dr/dlam (forward mode through the
-    integrator, one tangent) the 3-D full core compiled in 19.8 s instead of 16.2 s, and
-    the continuation ran 2-8 % faster (ref-A limit loads, paired). Planar (4 + 1
-    directions) the one pass compiled no faster and ran 11 % slower, so there dr/dlam
-    keeps its own pass."""
+    Without distributed loads (the usual case: point loads are jumps between segments)
+    the segments' flows do not depend on lam, so dr/dlam is the residual's own derivative
+    at the end states of the Jacobian pass, and the pass is J's alone. Paired against a
+    pass for dr/dlam (below), ref-A L1's full core compiled in 6.6-6.8 s against 8.1 s
+    planar and 10.7-11.1 s against 12.6-12.8 s in 3-D, and `limit_load` ran in 119-121
+    against 145-147 ms (planar) and 950-1000 against 1152-1162 ms (3-D), with the same
+    limit loads to 12 digits.
+
+    With distributed loads, in 3-D one forward pass integrates every segment with the
+    derivatives of its end state in the start state's 9 directions and in the load factor
+    (`flow_jacobians` along the load direction of the parameters): J from the colour seeds
+    as in `_linearise`, dr/dlam from the lam direction. With a pass of its own for dr/dlam
+    (forward mode through the integrator, one tangent) the 3-D full core compiled in
+    19.8 s instead of 16.2 s, and the continuation ran 2-8 % faster (ref-A limit loads,
+    paired). Planar (4 + 1 directions) the one pass compiled no faster and ran 11 %
+    slower, so there dr/dlam keeps its own pass. (Those figures are of session 21, when
+    every finger took these paths.)"""
     S = problem.table.length.shape[0]
+    if linear_solver == "banded" and not problem.topo.distributed:
+        # (the flows do not depend on lam: see above)
+        def fn(a):
+            starts, ends = problem.ends(a.reshape(S, -1), lam)
+            return problem.residual_from_states(starts, ends, lam).reshape(-1), (starts, ends)
+
+        plan = problem.topo.band
+        r, jvp, (starts, ends) = jax.linearize(fn, y, has_aux=True)
+        fac = _banded.factor(plan, _banded.band(plan, _banded.seeded(plan, jvp, y.dtype)))
+        at = lambda l: problem.residual_from_states(starts, ends, l).reshape(-1)
+        r_lam = jax.jvp(at, (lam,), (jnp.ones_like(lam),))[1]
+        return r, fac, _banded.solve_factored(plan, fac, r_lam), fac.sign
     if linear_solver != "banded" or problem.topo.mode == "planar":
         r, factors, sign = _linearise(problem, lam, y, linear_solver)
         Y = y.reshape(S, -1)

@@ -628,17 +628,19 @@ def test_the_fold_is_found_at_any_load_magnitude():
     # (L3 planar, 62 s, is slow: L2 checks the same tangent in the default suite)
     [
         ("L2", "planar"),
+        pytest.param("L2", "spatial", marks=pytest.mark.slow),
         pytest.param("L3", "planar", marks=pytest.mark.slow),
         pytest.param("L3", "spatial", marks=pytest.mark.slow),
     ],
 )
 def test_bordered_linearisation_gives_the_path_tangent(case, mode):
-    """The continuation's corrector and tangent read b = J^-1 dr/dlam from `_bordered`,
-    whose dr/dlam is one plain forward-mode tangent through the integrator (planar) or one
-    more direction of its Jacobian pass (3-D). Checked against a dense Jacobian and the
-    segment flow's own JVP rule at a deformed state with the loads half on (L3: a
-    distributed load, where r is nonlinear in lam), and the tangent built from it against
-    the null vector of [J, dr/dlam]."""
+    """The continuation's corrector and tangent read b = J^-1 dr/dlam from `_bordered`.
+    With point loads only (L2) its dr/dlam is the residual's derivative at fixed end
+    states; with a distributed load (L3, where r is nonlinear in lam through the flows) it
+    is one plain forward-mode tangent through the integrator (planar) or one more
+    direction of its Jacobian pass (3-D). Checked against a dense Jacobian and the segment
+    flow's own JVP rule at a deformed state with the loads half on, and the tangent built
+    from it against the null vector of [J, dr/dlam]."""
     finger = _ref(case)
     topo = fr.topology_of(finger, mode)
     problem = _solve._nograd(_solve._make_problem(topo, fr.Integrator(), finger))
