@@ -604,15 +604,12 @@ def flow_jacobians(
     save_all=False,
     q_columns=None,
     merge_rigid=True,
-    q_direction=None,
 ):
     """Integrate every segment with the Jacobians of its output (the end state, or with
     `save_all` the states at every step point) with respect to the start state's own
     tangent coordinates (`tangent_coords`) and to the parameters: one forward pass with
     those directions. q_columns: the parameter columns to differentiate in (static; None:
-    all of them). q_direction: instead, one direction in the parameters (S, n_q), e.g.
-    their derivative in the load factor: jac_q is then the output's derivative along it,
-    (..., 1). Returns (out, jac_y, jac_q); a Jacobian not asked for is None.
+    all of them). Returns (out, jac_y, jac_q); a Jacobian not asked for is None.
 
     Columns 0 (length) and 1 (rigid) share one integrated direction: the flow reads them
     only as the flexible length, length - rigid, and as the rigid transport at the start,
@@ -621,20 +618,14 @@ def flow_jacobians(
     the number of directions, in steps of four: 9 of them cost 0.08-0.12 ms more than 8
     on planar ref-A.) merge_rigid=False integrates both directions (for comparison)."""
     cols = None if q_columns is None else np.asarray(q_columns)
-    along = q_direction is not None
-    merge = merge_rigid and need_q and not along and cols is not None and 0 in cols and 1 in cols
+    merge = merge_rigid and need_q and cols is not None and 0 in cols and 1 in cols
     integrated = cols[cols != 1] if merge else cols
-    if along:
-        Q = (Q, q_direction)
 
     def one(y, q):
         # Differentiate along the start state's own tangent directions only (a frame
         # turns in 3 ways, not 9; translations need no integration without contact).
         E = model.tangent_basis(y)
-        if along:
-            (q, dq), b0 = q, jnp.zeros(1, y.dtype)
-            full = lambda b: q + b[0] * dq
-        elif integrated is None:
+        if integrated is None:
             b0, full = q, lambda b: b
         else:
             b0, full = q[integrated], lambda b: q.at[integrated].set(b)

@@ -143,6 +143,20 @@ class SolverOptions(eqx.Module):
 # --------------------------------------------------------------------------------------
 
 
+def _if(pred, true_fn, false_fn, *operands):
+    """lax.cond, or the one branch when pred is a Python bool (known when tracing)."""
+    if isinstance(pred, bool):
+        return (true_fn if pred else false_fn)(*operands)
+    return lax.cond(pred, true_fn, false_fn, *operands)
+
+
+def _where(pred, a, b):
+    """jnp.where, or the one value when pred is a Python bool."""
+    if isinstance(pred, bool):
+        return a if pred else b
+    return jnp.where(pred, a, b)
+
+
 def _natural_fn(y, args):
     problem, lam = args
     return problem.residual(y.reshape(problem.table.length.shape[0], -1), lam).reshape(-1)
@@ -168,6 +182,10 @@ class _Newton(eqx.Module):
     restart: jax.Array  # the next iteration starts a round (a new choice)
     outside: jax.Array  # contact found outside the near segments with no rounds left
     warm: jax.Array  # Newton began with chord steps on a warm start's factors
+    # With an arc-length constraint (`Arc`; None without one):
+    lam: jax.Array | None = None  # the load factor at y
+    dlam: jax.Array | None = None  # its step from y
+    b: jax.Array | None = None  # J^-1 dr/dlam at the last linearisation
 
 
 def _linearise(problem, lam, y, linear_solver):
@@ -240,9 +258,10 @@ def _newton_lean(
     max_halvings=12,
     max_rounds=3,
     chord=None,
+    arc=None,
 ):
     """Newton's method on the natural residual, with a line search that costs nothing when
-    the full step is good.
+    the full step is good; or, where `arc` says so, the continuation's corrector.
 
     Each iteration linearises at the trial point y - a dy. If its residual norm has not
     decreased enough (Armijo, ||r||^2 <= (1 - 1e-4 a) ||r_y||^2) the linearisation is
@@ -286,6 +305,19 @@ def _newton_lean(
     decrease the residual, the next iteration linearises at the start, not at the trial
     (so factors that do not fit cost two iterations, and Newton then runs as from a
     plain start).
+
+    arc: None, or an `Arc`: where its `on` holds, this is instead the continuation's
+    corrector, Newton on the bordered system r(y, lam) = 0, t . (w (y - y_prev),
+    lam - lam_prev) = ds from (y0, lam). Each iteration linearises (no chord steps, cap or
+    line search) and solves with the factors of J alone (bordering): with a = J^-1 r and
+    b = J^-1 dr/dlam the step is dlam = (g - w t_y . a) / (t_lam - w t_y . b) and
+    dy = a - b dlam, g the constraint's residual. Converged when the step is below
+    atol + rtol |z| and both residuals below atol. The last linearisation then lies within
+    that tolerance of the root, so its b and sign serve the path's tangent there. One
+    function for both, so that a core that runs both (`_path`) holds one Jacobian pass:
+    ref-A L1's full core compiled in 7.8-7.9 s instead of 9.8 s planar and in 11.6 s
+    instead of 14.7 s in 3-D (L3 planar, 9.1-9.4 s instead of 11.5 s), with the same
+    roots, iteration counts and limit loads (session 32).
     """
     contact = problem.topo.contact is not None
     choosing = contact and problem.topo.contact.near is not None
@@ -296,30 +328,36 @@ def _newton_lean(
     if reuse_below is None:
         reuse_below = 0.1 if contact else 1.0
 
-    def fresh(y_t, st):
-        return _linearise(at(st), lam, y_t, solver)
+    bordered = arc is not None
+    on = arc.on if bordered else False
 
-    def reused(y_t, st):
+    def fresh(y_t, lam_t, st):
+        if not bordered:
+            return _linearise(at(st), lam_t, y_t, solver) + (None,)
+        return _linearise_arc(at(st), lam_t, y_t, solver, on)
+
+    def reused(y_t, lam_t, st):
         # With contact the backtracking has evaluated the residual at y_t already.
-        r = st.r_next if contact else _natural_fn(y_t, (problem, lam))
-        return r, st.factors, st.sign
+        r = st.r_next if contact else _natural_fn(y_t, (problem, lam_t))
+        return r, st.factors, st.sign, st.b
 
     def far_touch(gaps, order):
         """Whether a segment outside the near ones of `order` touches (the contact law
         left out there was not zero)."""
         return jnp.min(gaps[order[problem.topo.contact.near :]]) < 0.0
 
-    def choose(y, order):
+    def choose(y, lam_y, order):
         """The segments nearest first at y (gaps along every segment), and `far_touch`."""
-        gaps = problem.gaps(y.reshape(S, -1), lam)
+        gaps = problem.gaps(y.reshape(S, -1), lam_y)
         return jnp.argsort(gaps), far_touch(gaps, order)
 
     def body(st: _Newton):
         y_t = st.y - st.a * st.dy
+        lam_t = st.lam - st.a * st.dlam if bordered else lam
         if options.reuse_jacobian:
-            r, factors, sign = lax.cond(st.reuse, reused, fresh, y_t, st)
+            r, factors, sign, b = lax.cond(st.reuse, reused, fresh, y_t, lam_t, st)
         else:
-            r, factors, sign = fresh(y_t, st)
+            r, factors, sign, b = fresh(y_t, lam_t, st)
         dy = _apply_inverse(problem, factors, r, solver)
         norm = jnp.sum(r * r)
         # Newton's own correction (before any line search or cap) in units of the
@@ -337,11 +375,34 @@ def _newton_lean(
         retry = jnp.asarray(False) if contact else st.reuse & ~decreased
         accept = start | contact | decreased
         accept = accept | ((st.a < 0.5**max_halvings) & ~retry)
-        if options.max_rotation_step is not None:
-            dy = _cap_rotation(problem, dy, options.max_rotation_step)
+
+        def newton_step(dy):
+            if options.max_rotation_step is not None:
+                dy = _cap_rotation(problem, dy, options.max_rotation_step)
+            return dy, jnp.zeros((), dy.dtype), jnp.asarray(False)
+
+        def corrector_step(dy):
+            """The bordered step where `on`, and its convergence test."""
+            wt = arc.w * arc.t[:-1]
+            g = jnp.dot(wt, y_t - arc.y) + arc.t[-1] * (lam_t - arc.lam) - arc.ds
+            d_lam = (g - jnp.dot(wt, dy)) / (arc.t[-1] - jnp.dot(wt, b))
+            d_y = dy - b * d_lam
+            y, lam = y_t - d_y, lam_t - d_lam
+            scale = lambda z: options.atol + options.rtol * jnp.abs(z)
+            small = jnp.maximum(jnp.max(jnp.abs(d_y) / scale(y)), jnp.abs(d_lam) / scale(lam))
+            resid = jnp.maximum(jnp.max(jnp.abs(r)), jnp.abs(g)) < options.atol
+            finite = jnp.all(jnp.isfinite(y)) & jnp.isfinite(lam)
+            return d_y, d_lam, (small < 1.0) & resid & finite
+
+        if bordered:
+            dy, dlam, conv_arc = _if(on, corrector_step, newton_step, dy)
+            accept = accept | jnp.asarray(on)
+        else:
+            dy = newton_step(dy)[0]
         r_next = st.r_next
         if contact:  # (after the cap: r_next is the residual where the step ends)
-            dy, r_next = _backtrack(at(st), lam, y_t, dy, r, max_halvings)
+            halvings = _where(on, 0, max_halvings) if bordered else max_halvings
+            dy, r_next = _backtrack(at(st), lam_t, y_t, dy, r, halvings)
         y = y_t - dy
         scale = options.atol + options.rtol * jnp.abs(y)
         finite = jnp.all(jnp.isfinite(y))
@@ -355,7 +416,12 @@ def _newton_lean(
         quadratic = (~start) & (ratio < 1e-2) & (step * ratio**2 < 0.1) & near & ~st.reuse
         linear = st.reuse & ~start & (ratio < 0.5) & (step * ratio / (1.0 - ratio) < 0.1)
         linear = linear & near
-        conv = accept & (conv | (full < 0.1) | quadratic | linear)
+        conv_newton = accept & (conv | (full < 0.1) | quadratic | linear)
+        if bordered:
+            lam_new = lam_t - dlam
+            conv = _where(on, conv_arc, conv_newton)
+        else:
+            conv = conv_newton
         no = jnp.asarray(False)
         order, again, outside = st.order, no, st.outside
         if choosing:
@@ -363,9 +429,10 @@ def _newton_lean(
             # outside the near ones touches. Checked at a root, and wherever a far
             # segment's start lies inside an object (cheap: no integration); on contact
             # outside, choose again from there and go on while rounds are left.
-            inside = far_touch(problem.gaps(y.reshape(S, -1), lam, along=False), st.order)
-            keep = lambda y, o: (o, jnp.asarray(False))
-            order, missed = lax.cond(conv | inside, choose, keep, y, st.order)
+            lam_y = lam_new if bordered else lam
+            inside = far_touch(problem.gaps(y.reshape(S, -1), lam_y, along=False), st.order)
+            keep = lambda y, l, o: (o, jnp.asarray(False))
+            order, missed = lax.cond(conv | inside, choose, keep, y, lam_y, st.order)
             again = missed & (st.rounds < max_rounds)
             outside = outside | (missed & ~again)  # (and give up)
             conv = conv & ~missed
@@ -374,6 +441,8 @@ def _newton_lean(
         # fourfold bound the grasp's release traces stalled at max_newton_steps.)
         short = biggest < reuse_below
         reuse_next = accept & jnp.where(st.reuse, ratio < 0.1, short)
+        if bordered:
+            reuse_next = reuse_next & ~jnp.asarray(on)
         k = st.k + 1
         # (a warm start's first chord trial that fails is linearised at the start)
         retry_at = jnp.where(st.warm & (k == 2), 0.0, st.a)
@@ -397,6 +466,9 @@ def _newton_lean(
             restart=again,
             outside=outside,
             warm=st.warm,
+            lam=jnp.where(conv | again, lam_new, pick(lam_t, st.lam)) if bordered else None,
+            dlam=jnp.where(again, 0.0, pick(dlam, st.dlam)) if bordered else None,
+            b=pick(b, st.b) if bordered else None,
         )
 
     # (the factors' shapes do not depend on `order`)
@@ -434,6 +506,9 @@ def _newton_lean(
         restart=jnp.asarray(False),
         outside=jnp.asarray(False),
         warm=reuse,
+        lam=jnp.asarray(lam, y0.dtype) if bordered else None,
+        dlam=jnp.zeros((), y0.dtype) if bordered else None,
+        b=jnp.zeros_like(y0) if bordered else None,
     )
     return lax.while_loop(lambda st: ~st.done, body, init)
 
@@ -554,10 +629,21 @@ def _live_param_columns(problem: Problem, d_problem, d_lam) -> np.ndarray:
     return np.flatnonzero(np.any(packed != 0.0, axis=0))
 
 
-def _bordered(problem, lam, y, linear_solver):
-    """The residual r at (y, lam), the factors of J = dr/dy there, b = J^-1 dr/dlam and the
-    sign of det J: what a Newton step on the continuation's bordered system and the path's
-    tangent need.
+class Arc(eqx.Module):
+    """The continuation's arc-length constraint t . (w (y - y_prev), lam - lam_prev) = ds
+    for `_newton_lean`, and whether it applies (`on`; else Newton runs at fixed lam)."""
+
+    on: jax.Array
+    y: jax.Array  # y_prev
+    lam: jax.Array  # lam_prev
+    t: jax.Array  # unit tangent in the weighted coordinates (w y, lam)
+    ds: jax.Array
+    w: jax.Array
+
+
+def _linearise_arc(problem, lam, y, linear_solver, on):
+    """`_linearise` (r, factors, sign of det J), and b = J^-1 dr/dlam where `on` (zeros
+    elsewhere): what a step of the continuation's corrector and the path's tangent need.
 
     Without distributed loads (the usual case: point loads are jumps between segments)
     the segments' flows do not depend on lam, so dr/dlam is the residual's own derivative
@@ -565,18 +651,11 @@ def _bordered(problem, lam, y, linear_solver):
     pass for dr/dlam (below), ref-A L1's full core compiled in 6.6-6.8 s against 8.1 s
     planar and 10.7-11.1 s against 12.6-12.8 s in 3-D, and `limit_load` ran in 119-121
     against 145-147 ms (planar) and 950-1000 against 1152-1162 ms (3-D), with the same
-    limit loads to 12 digits.
-
-    With distributed loads, in 3-D one forward pass integrates every segment with the
-    derivatives of its end state in the start state's 9 directions and in the load factor
-    (`flow_jacobians` along the load direction of the parameters): J from the colour seeds
-    as in `_linearise`, dr/dlam from the lam direction. With a pass of its own for dr/dlam
-    (forward mode through the integrator, one tangent) the 3-D full core compiled in
-    19.8 s instead of 16.2 s, and the continuation ran 2-8 % faster (ref-A limit loads,
-    paired). Planar (4 + 1 directions) the one pass compiled no faster and ran 11 %
-    slower, so there dr/dlam keeps its own pass. (Those figures are of session 21, when
-    every finger took these paths.)"""
+    limit loads to 12 digits (session 31, when the corrector had a Jacobian pass of its
+    own). With distributed loads dr/dlam is a forward-mode pass of its own through the
+    integrator (one tangent), where `on` only."""
     S = problem.table.length.shape[0]
+    one = jnp.ones_like(lam)
     if linear_solver == "banded" and not problem.topo.distributed:
         # (the flows do not depend on lam: see above)
         def fn(a):
@@ -585,88 +664,31 @@ def _bordered(problem, lam, y, linear_solver):
 
         plan = problem.topo.band
         r, jvp, (starts, ends) = jax.linearize(fn, y, has_aux=True)
-        fac = _banded.factor(plan, _banded.band(plan, _banded.seeded(plan, jvp, y.dtype)))
-        at = lambda l: problem.residual_from_states(starts, ends, l).reshape(-1)
-        r_lam = jax.jvp(at, (lam,), (jnp.ones_like(lam),))[1]
-        return r, fac, _banded.solve_factored(plan, fac, r_lam), fac.sign
-    if linear_solver != "banded" or problem.topo.mode == "planar":
+        factors = _banded.factor(plan, _banded.band(plan, _banded.seeded(plan, jvp, y.dtype)))
+        sign = factors.sign
+
+        def r_lam():
+            at = lambda l: problem.residual_from_states(starts, ends, l).reshape(-1)
+            return jax.jvp(at, (lam,), (one,))[1]
+
+    else:
         r, factors, sign = _linearise(problem, lam, y, linear_solver)
         Y = y.reshape(S, -1)
-        starts = problem.start_states(Y)
 
-        def residual(lam):
-            return problem.residual_from_states(starts, problem.integrated(Y, lam)[:, -1], lam)
+        def r_lam():
+            starts = problem.start_states(Y)
 
-        r_lam = jax.jvp(residual, (lam,), (jnp.ones_like(lam),))[1]
-        return r, factors, _apply_inverse(problem, factors, r_lam, linear_solver), sign
-    md, plan = problem.model, problem.topo.band
-    starts, setup_jvp = jax.linearize(lambda a: problem.start_states(a.reshape(S, -1)), y)
-    Q, dQ = jax.jvp(problem.params, (lam,), (jnp.ones_like(lam),))
-    ends, jac_y, jac_lam = flow_jacobians(md, problem.integrator, starts, Q, q_direction=dQ)
-    r, residual_jvp = jax.linearize(problem.residual_from_states, starts, ends, lam)
-    no_lam = jnp.zeros_like(lam)
+            def residual(l):
+                return problem.residual_from_states(starts, problem.integrated(Y, l)[:, -1], l)
 
-    def r_dot(da):
-        d_starts = setup_jvp(da)
-        d_ends = apply_flow_jacobians(md, starts, d_starts, None, jac_y, None)
-        return residual_jvp(d_starts, d_ends, no_lam)
+            return jax.jvp(residual, (lam,), (one,))[1]
 
-    JS = _banded.seeded(plan, r_dot, y.dtype)
-    r_lam = residual_jvp(jnp.zeros_like(starts), jac_lam[..., 0], jnp.ones_like(lam))
-    fac = _banded.factor(plan, _banded.band(plan, JS))
-    return r, fac, _banded.solve_factored(plan, fac, r_lam), fac.sign
-
-
-class _Corrector(eqx.Module):
-    y: jax.Array
-    lam: jax.Array
-    k: jax.Array  # linearisations
-    done: jax.Array
-    ok: jax.Array
-    b: jax.Array  # J^-1 dr/dlam at the last linearisation
-    sign: jax.Array  # sign of det J there
-
-
-def _correct(problem, y, lam, arc, options: SolverOptions):
-    """Newton on the bordered system r(y, lam) = 0, t . (w (y - y_prev), lam - lam_prev) = ds
-    from the predictor (y, lam); arc = (y_prev, lam_prev, t, ds, w).
-
-    Each iteration solves with the factors of J alone (bordering): with a = J^-1 r and
-    b = J^-1 dr/dlam, the step is dlam = (g - w t_y . a) / (t_lam - w t_y . b) and
-    dy = a - b dlam, g the constraint's residual. Converged when the step is below
-    atol + rtol |z| and both residuals below atol. The last linearisation lies within that
-    tolerance of the root, so its b and sign serve the tangent there."""
-    y_prev, lam_prev, t, ds, w = arc
-    solver = options.linear_solver
-    wt = w * t[:-1]
-
-    def body(c: _Corrector):
-        r, factors, b, sign = _bordered(problem, c.lam, c.y, solver)
-        a = _apply_inverse(problem, factors, r, solver)
-        g = jnp.dot(wt, c.y - y_prev) + t[-1] * (c.lam - lam_prev) - ds
-        d_lam = (g - jnp.dot(wt, a)) / (t[-1] - jnp.dot(wt, b))
-        d_y = a - b * d_lam
-        y, lam = c.y - d_y, c.lam - d_lam
-        scale = lambda z: options.atol + options.rtol * jnp.abs(z)
-        small = jnp.maximum(jnp.max(jnp.abs(d_y) / scale(y)), jnp.abs(d_lam) / scale(lam)) < 1.0
-        resid = jnp.maximum(jnp.max(jnp.abs(r)), jnp.abs(g)) < options.atol
-        finite = jnp.all(jnp.isfinite(y)) & jnp.isfinite(lam)
-        conv = small & resid & finite
-        k = c.k + 1
-        return _Corrector(
-            y, lam, k, conv | ~finite | (k >= options.max_newton_steps), conv, b, sign
-        )
-
-    init = _Corrector(
-        y=y,
-        lam=lam,
-        k=jnp.asarray(0),
-        done=jnp.asarray(False),
-        ok=jnp.asarray(False),
-        b=jnp.zeros_like(y),
-        sign=jnp.asarray(0.0),
+    b = _if(
+        on,
+        lambda: _apply_inverse(problem, factors, r_lam(), linear_solver),
+        lambda: jnp.zeros_like(y),
     )
-    return lax.while_loop(lambda c: ~c.done, body, init)
+    return r, factors, sign, b
 
 
 # The largest change of any scaled unknown that the first continuation step may predict
@@ -695,84 +717,79 @@ class _Arc(eqx.Module):
     lam_over: jax.Array
     steps: jax.Array
     iterations: jax.Array
+    collapsed: jax.Array  # done before max_continuation_steps: reached, or the step collapsed
 
 
-def _continuation(problem: Problem, y0, target, options: SolverOptions, active=True):
-    """Pseudo-arc-length continuation from (y0, lam = 0) toward lam = target.
+def _arc_step(s: _Arc) -> Arc:
+    """The next step's constraint from the path's state; its predictor is
+    (y + ds t_y / w, lam + ds t_lam). The first step has length zero (at the start): it
+    gives the first tangent and the weight w."""
+    ds = jnp.where(s.started, s.ds, 0.0)
+    return Arc(jnp.asarray(True), s.y, s.lam, s.t, ds, s.w)
 
-    Stops when the path crosses `target` (reached) or when it folds back (the load factor
-    stops increasing), refining the fold by step halving down to min_arc_step. Returns the
-    final state: for `reached`, the point before and the first point past the target.
 
-    Every step is a predictor along the tangent, a corrector (`_correct`) and the tangent
-    at the new point, from the corrector's last linearisation: in the weighted coordinates
-    (w y, lam) it is (-w J^-1 dr/dlam, 1), normalised and oriented along the last one. The
-    loop's first pass is a step of length zero at the start, which gives the first tangent
-    and the weight: w makes its shape and load parts equal, and the arc steps' unit (see
-    FIRST_STEP_CHANGE). (So the loop holds the only Jacobian pass of the continuation: one
-    compiled instance.)
-    """
-    opts = options
+def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
+    """The path's state after a corrector `c` (a bordered `_newton_lean` from the
+    predictor of `_arc_step(s)`): accept the point, or halve the step.
 
-    def cond(s: _Arc):
-        return ~s.done & (s.steps < opts.max_continuation_steps)
-
-    def body(s: _Arc):
-        first = ~s.started
-        ds = jnp.where(first, 0.0, s.ds)
-        pred = (s.y + ds * s.t[:-1] / s.w, s.lam + ds * s.t[-1])
-        c = _correct(problem, *pred, (s.y, s.lam, s.t, ds, s.w), opts)
-        y1, lam1, ok, nit = c.y, c.lam, c.ok, c.k
-        w = jnp.where(first, 1.0 / jnp.maximum(jnp.linalg.norm(c.b), 1e-30), s.w)
-        # A step ds along the first tangent (-w b, 1) / sqrt(2) predicts a change of
-        # ds max|b| / sqrt(2) in the scaled unknowns.
-        change = opts.initial_arc_step * jnp.max(jnp.abs(c.b)) / jnp.sqrt(2.0)
-        unit = jnp.where(first, jnp.minimum(1.0, FIRST_STEP_CHANGE / change), s.unit)
-        t1 = jnp.concatenate([-w * c.b, jnp.ones((1,), c.b.dtype)])
-        t1 = t1 / jnp.linalg.norm(t1)
-        t1 = jnp.where(jnp.dot(t1, s.t) < 0.0, -t1, t1)
-        sign1 = c.sign
-        sign = jnp.where(first, sign1, s.sign)
-        # A step that turns the tangent sharply, or needs many corrector iterations, may
-        # have jumped to another branch: retry shorter. On the traced branch det(dr/dy)
-        # keeps its sign until the fold, where the load factor turns back; a sign change
-        # while the load still rises (or the reverse) is a jump to another branch.
-        smooth = (jnp.dot(t1, s.t) >= opts.min_tangent_cosine) & (nit <= opts.max_corrector_steps)
-        same = sign1 == sign
-        rising = t1[-1] > 0.0
-        folded = ok & smooth & ~same & ~rising & ~first
-        accept = ok & (first | (smooth & same & rising))
-        reached = accept & (lam1 >= target) & ~first
-        grow = accept & (nit <= 4) & ~s.near_fold & ~first
-        ds_new = jnp.where(
-            accept,
-            jnp.where(grow, jnp.minimum(1.6 * s.ds, unit * opts.max_arc_step), s.ds),
-            0.5 * s.ds,
-        )
-        ds_new = jnp.where(first, unit * s.ds, ds_new)
-        near_fold = s.near_fold | folded
-        tiny = ds_new < unit * opts.min_arc_step
-        keep = accept & ~reached
-        count = jnp.where(first, 0, 1)
-        return _Arc(
-            sign=sign,
-            y=jnp.where(keep, y1, s.y),
-            lam=jnp.where(keep, lam1, s.lam),
-            t=jnp.where(keep, t1, s.t),
-            w=w,
-            ds=ds_new,
-            unit=unit,
-            started=s.started | ok,
-            near_fold=near_fold,
-            done=reached | (~accept & tiny) | (first & ~ok),
-            reached=reached,
-            y_over=jnp.where(reached, y1, s.y_over),
-            lam_over=jnp.where(reached, lam1, s.lam_over),
-            steps=s.steps + count,
-            iterations=s.iterations + count * nit,
-        )
-
-    return lax.while_loop(cond, body, _arc_start(y0, opts, active))
+    The tangent at the new point comes from the corrector's last linearisation: in the
+    weighted coordinates (w y, lam) it is (-w J^-1 dr/dlam, 1), normalised and oriented
+    along the last one. The first pass (a step of length zero) sets the weight w, which
+    makes the tangent's shape and load parts equal, and the arc steps' unit (see
+    FIRST_STEP_CHANGE)."""
+    first = ~s.started
+    y1, lam1, ok, nit, b = c.y, c.lam, c.ok, c.k, c.b
+    w = jnp.where(first, 1.0 / jnp.maximum(jnp.linalg.norm(b), 1e-30), s.w)
+    # A step ds along the first tangent (-w b, 1) / sqrt(2) predicts a change of
+    # ds max|b| / sqrt(2) in the scaled unknowns.
+    change = opts.initial_arc_step * jnp.max(jnp.abs(b)) / jnp.sqrt(2.0)
+    unit = jnp.where(first, jnp.minimum(1.0, FIRST_STEP_CHANGE / change), s.unit)
+    t1 = jnp.concatenate([-w * b, jnp.ones((1,), b.dtype)])
+    t1 = t1 / jnp.linalg.norm(t1)
+    t1 = jnp.where(jnp.dot(t1, s.t) < 0.0, -t1, t1)
+    sign1 = c.sign
+    sign = jnp.where(first, sign1, s.sign)
+    # A step that turns the tangent sharply, or needs many corrector iterations, may
+    # have jumped to another branch: retry shorter. On the traced branch det(dr/dy)
+    # keeps its sign until the fold, where the load factor turns back; a sign change
+    # while the load still rises (or the reverse) is a jump to another branch.
+    smooth = (jnp.dot(t1, s.t) >= opts.min_tangent_cosine) & (nit <= opts.max_corrector_steps)
+    same = sign1 == sign
+    rising = t1[-1] > 0.0
+    folded = ok & smooth & ~same & ~rising & ~first
+    accept = ok & (first | (smooth & same & rising))
+    reached = accept & (lam1 >= target) & ~first
+    grow = accept & (nit <= 4) & ~s.near_fold & ~first
+    ds_new = jnp.where(
+        accept,
+        jnp.where(grow, jnp.minimum(1.6 * s.ds, unit * opts.max_arc_step), s.ds),
+        0.5 * s.ds,
+    )
+    ds_new = jnp.where(first, unit * s.ds, ds_new)
+    near_fold = s.near_fold | folded
+    tiny = ds_new < unit * opts.min_arc_step
+    keep = accept & ~reached
+    count = jnp.where(first, 0, 1)
+    steps = s.steps + count
+    done = reached | (~accept & tiny) | (first & ~ok)
+    return _Arc(
+        sign=sign,
+        y=jnp.where(keep, y1, s.y),
+        lam=jnp.where(keep, lam1, s.lam),
+        t=jnp.where(keep, t1, s.t),
+        w=w,
+        ds=ds_new,
+        unit=unit,
+        started=s.started | ok,
+        near_fold=near_fold,
+        done=done | (steps >= opts.max_continuation_steps),
+        reached=reached,
+        y_over=jnp.where(reached, y1, s.y_over),
+        lam_over=jnp.where(reached, lam1, s.lam_over),
+        steps=steps,
+        iterations=s.iterations + count * nit,
+        collapsed=done,
+    )
 
 
 def _arc_start(y0, options: SolverOptions, active=True) -> _Arc:
@@ -794,13 +811,16 @@ def _arc_start(y0, options: SolverOptions, active=True) -> _Arc:
         lam_over=zero,
         steps=jnp.asarray(0),
         iterations=jnp.asarray(0),
+        collapsed=false,
     )
 
 
 def _stopped(s: _Arc):
     """Why a continuation that neither reached its target nor found a fold stopped: its
-    arc step collapsed (done), or it ran out of steps while the load still rose."""
-    return RESULTS.where(s.done, RESULTS.continuation_failed, RESULTS.continuation_steps_exhausted)
+    arc step collapsed, or it ran out of steps while the load still rose."""
+    return RESULTS.where(
+        s.collapsed, RESULTS.continuation_failed, RESULTS.continuation_steps_exhausted
+    )
 
 
 def _fold_result(s: _Arc):
@@ -947,68 +967,99 @@ def undeformed_unknowns(topo, finger: Finger):
     return _make_problem(topo, None, finger).undeformed().reshape(-1)
 
 
-class _Round(eqx.Module):
-    stage: jax.Array  # 0: Newton at full load; 1: continuation, then Newton; 2: finished
+class _Path(eqx.Module):
+    phase: jax.Array  # 0: Newton at full load; 1: continuation; 2: Newton after it; 3: finished
+    arc: _Arc
     y: jax.Array
     lam: jax.Array
     code: object  # RESULTS item
     iterations: jax.Array
 
 
-@_core_jit
-def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
-    """Direct Newton, else arc-length continuation, all traced (for jit, vmap, grad).
+def _path(
+    problem, y_start, y_und, target, options: SolverOptions, chord=None, phase=0, finish=True
+):
+    """Direct Newton at full load (lam = 1), else pseudo-arc-length continuation from
+    (y_und, lam = 0) toward lam = target and Newton again at full load from the point it
+    reached: one loop whose every pass is one `_newton_lean`, plain (phases 0 and 2) or
+    the continuation's corrector (phase 1, one arc step per pass). So the core holds one
+    Newton and one Jacobian pass, whatever it runs. phase: where to begin (1: with
+    the continuation, as for direct_first=False or the limit load).
 
-    One loop of at most two rounds: Newton at full load from the start, then, if it is
-    not accepted, the continuation and Newton again from the point it reached. Both Newton
-    solves are one compiled instance (the loop's body), which roughly halves the compile
-    time against writing them out one after the other."""
-    problem = _make_problem(topo, integrator, finger)
-    quiet = _nograd(problem)
-    y_und, y_start, chord = _start(quiet, init)
+    The continuation stops when the path crosses `target` (reached: Newton at full load
+    then starts between the point before and the first point past it) or when it folds
+    back (the load factor stops increasing), refining the fold by step halving down to
+    min_arc_step; see `_arc_advance`. finish=False: the continuation alone (begun at
+    phase 1, never reaching phase 2; the Newton is then the corrector alone, with no
+    chord steps, rotation cap or plain-Newton branches compiled)."""
     one = jnp.ones(())
+    only_arc = not finish
+    newton_options = options
+    if only_arc:
+        newton_options = dataclasses.replace(options, reuse_jacobian=False, max_rotation_step=None)
 
-    def body(st: _Round):
-        cont = st.stage == 1
-        # (a cond, so that a solve without continuation does not pay for the loop's set-up;
-        # vmapped, it runs the loop, inactive for the designs that need none, as before)
-        s = lax.cond(
-            cont,
-            lambda: _continuation(quiet, y_und, one, options, cont),
-            lambda: _arc_start(y_und, options, False),
-        )
+    def body(st: _Path):
+        p, s = st.phase, st.arc
+        arc = _arc_step(s)
+        cont = p == 1
         frac = (1.0 - s.lam) / jnp.maximum(s.lam_over - s.lam, 1e-300)
         guess = jnp.where(s.reached, s.y + frac * (s.y_over - s.y), s.y)
+        y0 = jnp.where(p == 0, y_start, jnp.where(cont, s.y + arc.ds * s.t[:-1] / s.w, guess))
+        lam0 = jnp.where(cont, s.lam + arc.ds * s.t[-1], one)
         # (a warm start's factors serve the direct Newton only)
-        warm = (
-            None if chord is None else WarmStart(chord.unknowns, chord.factors, chord.use & ~cont)
-        )
-        newton = _newton_lean(
-            quiet, jnp.where(cont, guess, y_start), one, options, ~cont | s.reached, chord=warm
-        )
+        warm = None
+        if chord is not None:
+            warm = WarmStart(chord.unknowns, chord.factors, chord.use & (p == 0))
+        arc = dataclasses.replace(arc, on=True if only_arc else cont)
+        newton = _newton_lean(problem, y0, lam0, newton_options, p < 3, chord=warm, arc=arc)
+        # Phase 0: accepted, or on to the continuation.
         direct_ok = _on_branch(newton)
-        # After the continuation: the fold, or Newton's root on the traced branch.
-        code = _fold_result(s)
+        # Phase 1: the next arc step; once it stops, Newton at full load where it reached.
+        s1 = lax.cond(cont, lambda: _arc_advance(s, newton, target, options), lambda: s)
+        s1 = jax.tree_util.tree_map(
+            lambda a, b: jnp.where(p == 0, a, b), _arc_start(y_und, options), s1
+        )
+        # Phase 2 (and a continuation that stops short): the fold, or Newton's root on the
+        # traced branch.
+        code = _fold_result(s1)
         off_branch = s.reached & (~newton.ok | (newton.sign != s.sign))
         code = RESULTS.where(off_branch, RESULTS.nonlinear_divergence, code)
-        code = RESULTS.where(cont, code, RESULTS.successful)
-        y = jnp.where(cont & ~s.reached, s.y, newton.y)
-        return _Round(
-            stage=jnp.where(cont | direct_ok, 2, 1),
+        code = RESULTS.where(p == 0, RESULTS.successful, code)
+        stopped = s1.done & ~s1.reached
+        after_arc = jnp.where(s1.done, jnp.where(s1.reached, 2, 3), 1)
+        phase = jnp.select([p == 0, cont], [jnp.where(direct_ok, 3, 1), after_arc], 3)
+        y = jnp.where(cont, s1.y, newton.y)
+        lam = jnp.where(cont, s1.lam, one)
+        counted = jnp.where(cont, jnp.where(s.started, newton.k, 0), newton.k)
+        return _Path(
+            phase=jnp.where(p < 3, phase, 3),
+            arc=s1,
             y=y,
-            lam=jnp.where(cont & ~s.reached, s.lam, one),
-            code=code,
-            iterations=st.iterations + newton.k + jnp.where(cont, s.iterations, 0),
+            lam=lam,
+            code=RESULTS.where(cont & ~stopped, st.code, code),
+            iterations=st.iterations + counted,
         )
 
-    init = _Round(
-        stage=jnp.asarray(0 if options.direct_first else 1),
+    init = _Path(
+        phase=jnp.asarray(phase),
+        arc=_arc_start(y_und, options),
         y=y_start,
         lam=one,
         code=RESULTS.successful,
         iterations=jnp.asarray(0),
     )
-    st = lax.while_loop(lambda st: st.stage < 2, body, init)
+    return lax.while_loop(lambda st: st.phase < 3, body, init)
+
+
+@_core_jit
+def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
+    """Direct Newton, else arc-length continuation and Newton again from the point it
+    reached, all traced (for jit, vmap, grad): one loop, one Newton (`_path`)."""
+    problem = _make_problem(topo, integrator, finger)
+    quiet = _nograd(problem)
+    y_und, y_start, chord = _start(quiet, init)
+    one = jnp.ones(())
+    st = _path(quiet, y_start, y_und, one, options, chord, 0 if options.direct_first else 1)
     y, traj = _attach_implicit_gradient(problem, st.lam, st.y, options.linear_solver)
     return _outputs(problem, y, st.lam, st.code, st.iterations, traj)
 
@@ -1017,7 +1068,7 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
 def _limit_core(topo, integrator, options: SolverOptions, finger: Finger):
     problem = _nograd(_make_problem(topo, integrator, finger))
     y_und = problem.undeformed().reshape(-1)
-    s = _continuation(problem, y_und, jnp.asarray(jnp.inf), options)
+    s = _path(problem, y_und, y_und, jnp.asarray(jnp.inf), options, phase=1, finish=False).arc
     code = RESULTS.where(s.near_fold, RESULTS.successful, _stopped(s))
     return s.lam, _outputs(problem, s.y, s.lam, code, s.iterations)
 

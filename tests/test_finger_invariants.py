@@ -634,13 +634,13 @@ def test_the_fold_is_found_at_any_load_magnitude():
     ],
 )
 def test_bordered_linearisation_gives_the_path_tangent(case, mode):
-    """The continuation's corrector and tangent read b = J^-1 dr/dlam from `_bordered`.
-    With point loads only (L2) its dr/dlam is the residual's derivative at fixed end
-    states; with a distributed load (L3, where r is nonlinear in lam through the flows) it
-    is one plain forward-mode tangent through the integrator (planar) or one more
-    direction of its Jacobian pass (3-D). Checked against a dense Jacobian and the segment
-    flow's own JVP rule at a deformed state with the loads half on, and the tangent built
-    from it against the null vector of [J, dr/dlam]."""
+    """The continuation's corrector and tangent read b = J^-1 dr/dlam from
+    `_linearise_arc`. With point loads only (L2) its dr/dlam is the residual's derivative
+    at fixed end states; with a distributed load (L3, where r is nonlinear in lam through
+    the flows) it is one plain forward-mode tangent through the integrator. Checked
+    against a dense Jacobian and the segment flow's own JVP rule at a deformed state with
+    the loads half on, and the tangent built from it against the null vector of
+    [J, dr/dlam]."""
     finger = _ref(case)
     topo = fr.topology_of(finger, mode)
     problem = _solve._nograd(_solve._make_problem(topo, fr.Integrator(), finger))
@@ -648,7 +648,7 @@ def test_bordered_linearisation_gives_the_path_tangent(case, mode):
     y = _solve.undeformed_unknowns(topo, finger)
     y = _solve._newton_lean(problem, y, half, fr.SolverOptions()).y  # an equilibrium
     y = y + 1e-3 * np.cos(np.arange(y.size))  # and a point off it
-    r, factors, b, sign = _solve._bordered(problem, half, y, "banded")
+    r, factors, sign, b = _solve._linearise_arc(problem, half, y, "banded", True)
     fn = lambda a, lam: _solve._natural_fn(a, (problem, lam))
     J = jax.jacfwd(fn)(y, half)
     r_lam = jax.jvp(lambda lam: fn(y, lam), (half,), (jax.numpy.ones(()),))[1]
