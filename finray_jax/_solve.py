@@ -720,12 +720,12 @@ class _Arc(eqx.Module):
     collapsed: jax.Array  # done before max_continuation_steps: reached, or the step collapsed
 
 
-def _arc_step(s: _Arc) -> Arc:
-    """The next step's constraint from the path's state; its predictor is
-    (y + ds t_y / w, lam + ds t_lam). The first step has length zero (at the start): it
-    gives the first tangent and the weight w."""
+def _arc_step(s: _Arc, on=True):
+    """The next step's constraint from the path's state and its predictor
+    (y + ds t_y / w, lam + ds t_lam): (Arc, y, lam). The first step has length zero (at
+    the start): it gives the first tangent and the weight w."""
     ds = jnp.where(s.started, s.ds, 0.0)
-    return Arc(jnp.asarray(True), s.y, s.lam, s.t, ds, s.w)
+    return Arc(on, s.y, s.lam, s.t, ds, s.w), s.y + ds * s.t[:-1] / s.w, s.lam + ds * s.t[-1]
 
 
 def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
@@ -976,46 +976,50 @@ class _Path(eqx.Module):
     iterations: jax.Array
 
 
-def _path(
-    problem, y_start, y_und, target, options: SolverOptions, chord=None, phase=0, finish=True
-):
+def _continuation(problem, y0, target, options: SolverOptions) -> _Arc:
+    """The continuation alone (the limit load): arc steps from (y0, lam = 0) until the
+    path stops (`_arc_advance`). Its Newton is the corrector alone: no chord steps, cap
+    or plain-Newton branches are compiled."""
+    corrector = dataclasses.replace(options, reuse_jacobian=False, max_rotation_step=None)
+
+    def body(s: _Arc):
+        arc, y, lam = _arc_step(s)
+        return _arc_advance(s, _newton_lean(problem, y, lam, corrector, arc=arc), target, options)
+
+    return lax.while_loop(lambda s: ~s.done, body, _arc_start(y0, options))
+
+
+def _path(problem, y_start, y_und, options: SolverOptions, chord=None, phase=0):
     """Direct Newton at full load (lam = 1), else pseudo-arc-length continuation from
-    (y_und, lam = 0) toward lam = target and Newton again at full load from the point it
+    (y_und, lam = 0) toward lam = 1 and Newton again at full load from the point it
     reached: one loop whose every pass is one `_newton_lean`, plain (phases 0 and 2) or
     the continuation's corrector (phase 1, one arc step per pass). So the core holds one
     Newton and one Jacobian pass, whatever it runs. phase: where to begin (1: with
-    the continuation, as for direct_first=False or the limit load).
+    the continuation, as for direct_first=False).
 
-    The continuation stops when the path crosses `target` (reached: Newton at full load
+    The continuation stops when the path crosses lam = 1 (reached: Newton at full load
     then starts between the point before and the first point past it) or when it folds
     back (the load factor stops increasing), refining the fold by step halving down to
-    min_arc_step; see `_arc_advance`. finish=False: the continuation alone (begun at
-    phase 1, never reaching phase 2; the Newton is then the corrector alone, with no
-    chord steps, rotation cap or plain-Newton branches compiled)."""
+    min_arc_step; see `_arc_advance`."""
     one = jnp.ones(())
-    only_arc = not finish
-    newton_options = options
-    if only_arc:
-        newton_options = dataclasses.replace(options, reuse_jacobian=False, max_rotation_step=None)
 
     def body(st: _Path):
         p, s = st.phase, st.arc
-        arc = _arc_step(s)
         cont = p == 1
+        arc, y_pred, lam_pred = _arc_step(s, cont)
         frac = (1.0 - s.lam) / jnp.maximum(s.lam_over - s.lam, 1e-300)
         guess = jnp.where(s.reached, s.y + frac * (s.y_over - s.y), s.y)
-        y0 = jnp.where(p == 0, y_start, jnp.where(cont, s.y + arc.ds * s.t[:-1] / s.w, guess))
-        lam0 = jnp.where(cont, s.lam + arc.ds * s.t[-1], one)
+        y0 = jnp.where(p == 0, y_start, jnp.where(cont, y_pred, guess))
+        lam0 = jnp.where(cont, lam_pred, one)
         # (a warm start's factors serve the direct Newton only)
         warm = None
         if chord is not None:
             warm = WarmStart(chord.unknowns, chord.factors, chord.use & (p == 0))
-        arc = dataclasses.replace(arc, on=True if only_arc else cont)
-        newton = _newton_lean(problem, y0, lam0, newton_options, p < 3, chord=warm, arc=arc)
+        newton = _newton_lean(problem, y0, lam0, options, p < 3, chord=warm, arc=arc)
         # Phase 0: accepted, or on to the continuation.
         direct_ok = _on_branch(newton)
         # Phase 1: the next arc step; once it stops, Newton at full load where it reached.
-        s1 = lax.cond(cont, lambda: _arc_advance(s, newton, target, options), lambda: s)
+        s1 = lax.cond(cont, lambda: _arc_advance(s, newton, one, options), lambda: s)
         s1 = jax.tree_util.tree_map(
             lambda a, b: jnp.where(p == 0, a, b), _arc_start(y_und, options), s1
         )
@@ -1058,8 +1062,7 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     problem = _make_problem(topo, integrator, finger)
     quiet = _nograd(problem)
     y_und, y_start, chord = _start(quiet, init)
-    one = jnp.ones(())
-    st = _path(quiet, y_start, y_und, one, options, chord, 0 if options.direct_first else 1)
+    st = _path(quiet, y_start, y_und, options, chord, 0 if options.direct_first else 1)
     y, traj = _attach_implicit_gradient(problem, st.lam, st.y, options.linear_solver)
     return _outputs(problem, y, st.lam, st.code, st.iterations, traj)
 
@@ -1068,7 +1071,7 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
 def _limit_core(topo, integrator, options: SolverOptions, finger: Finger):
     problem = _nograd(_make_problem(topo, integrator, finger))
     y_und = problem.undeformed().reshape(-1)
-    s = _path(problem, y_und, y_und, jnp.asarray(jnp.inf), options, phase=1, finish=False).arc
+    s = _continuation(problem, y_und, jnp.asarray(jnp.inf), options)
     code = RESULTS.where(s.near_fold, RESULTS.successful, _stopped(s))
     return s.lam, _outputs(problem, s.y, s.lam, code, s.iterations)
 
