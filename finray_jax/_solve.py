@@ -631,7 +631,8 @@ def _live_param_columns(problem: Problem, d_problem, d_lam) -> np.ndarray:
 
 class Arc(eqx.Module):
     """The continuation's arc-length constraint t . (w (y - y_prev), lam - lam_prev) = ds
-    for `_newton_lean`, and whether it applies (`on`; else Newton runs at fixed lam)."""
+    for `_newton_lean`, and whether it applies (`on`; else Newton runs at fixed lam). `on`
+    may be a Python bool (the limit load's corrector): the other mode is then not traced."""
 
     on: jax.Array
     y: jax.Array  # y_prev
