@@ -58,7 +58,8 @@ class Contact(eqx.Module):
         position directions it adds to every segment's Jacobian). The solve checks the
         choice (the other segments' start points at every iterate, all their step points
         at a root): where one of them touches, it chooses again from that state and goes
-        on, up to three choices, and otherwise reports `contact_outside_near_segments`.
+        on, up to three choices, and otherwise reports `contact_outside_near_segments`
+        (the path solver of `grasp` and `release_force` then goes on with every segment).
         None: every segment, always.
     """
 

@@ -286,8 +286,17 @@ class _Stepper:
         ref = np.float64(self.sign if init is not None else 0.0)
         if init is None:  # (an array either way: one compiled program for both)
             init = undeformed_unknowns(self.topo, finger)
-        sol, ok, sign = _direct_core(self.topo, self.integrator, self.options, finger, init, ref)
+        solve = lambda: _direct_core(self.topo, self.integrator, self.options, finger, init, ref)
+        sol, ok, sign = solve()
         ok = bool(ok)
+        if not ok and bool(sol.result == RESULTS.contact_outside_near_segments):
+            # The contact spans more segments than the near ones (a flat face pressed on a
+            # straight beam touches it all along at once): from here on, every segment.
+            contact = dataclasses.replace(self.topo.contact, near=None)
+            self.topo = dataclasses.replace(self.topo, contact=contact)
+            self.calls += 1
+            sol, ok, sign = solve()
+            ok = bool(ok)
         if ok:
             self.sign = float(sign)
         else:

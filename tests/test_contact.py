@@ -335,12 +335,12 @@ def test_contact_beyond_the_near_segments_is_found():
     assert "Contact.near_segments" in f"{fr.RESULTS[solutions[8].result]}"
     assert solutions[16].converged
     np.testing.assert_allclose(solutions[16].unknowns, full.unknowns, rtol=0, atol=1e-9)
-    # A path solver that gives up keeps why (grasp and release_force report it).
+    # The path solver of grasp and release_force goes on with every segment instead.
     finger = _with_near(base, 8)
     stepper = _Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
-    _, _, ok = stepper.follow(finger.scale_loads, 0.0, 1.0, None, 1.0, 1.0)
-    assert not ok
-    assert stepper.failure == fr.RESULTS.contact_outside_near_segments
+    _, sol, ok = stepper.follow(finger.scale_loads, 0.0, 1.0, None, 1.0, 1.0)
+    assert ok and stepper.topo.contact.near is None
+    np.testing.assert_allclose(sol.unknowns, full.unknowns, rtol=0, atol=1e-9)
 
 
 # ---------------------------------------------------------------------------------------
@@ -355,6 +355,22 @@ def finger1():
 
 
 MODIFIED = fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+
+
+def test_a_flat_face_pressed_on_the_front_beam(finger1):
+    """A box's flat face 0.5 mm in front of the straight front beam first touches it all
+    along (14 segments), more than the near ones: the grasp goes on with every segment
+    (it used to stop at the first contact with `contact_outside_near_segments`) and gives
+    the grasp of a finger that always uses every segment."""
+    box = fr.RoundedRectangle((-22.0, 75.0), (20.0, 35.0), corner_radius=2.0)
+    finger = eqx.tree_at(lambda f: f.objects, finger1, (box,))
+    g = fr.grasp(finger, 3.0)
+    assert g.converged and g.topology.contact.near is None
+    assert float(g.contact.normal_force) > 0.1
+    assert float(g.contact.max_penetration) <= 0.02 * float(finger.front.thickness)
+    every = fr.grasp(_with_near(finger, None), 3.0)
+    assert float(g.closing) == float(every.closing) == 3.0
+    np.testing.assert_allclose(g.solution.unknowns, every.solution.unknowns, rtol=0, atol=1e-9)
 
 
 @pytest.fixture(scope="module")
