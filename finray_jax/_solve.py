@@ -718,7 +718,6 @@ class _Arc(eqx.Module):
     lam_over: jax.Array
     steps: jax.Array
     iterations: jax.Array
-    collapsed: jax.Array  # done before max_continuation_steps: reached, or the step collapsed
 
 
 def _arc_step(s: _Arc, on=True):
@@ -771,8 +770,6 @@ def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
     tiny = ds_new < unit * opts.min_arc_step
     keep = accept & ~reached
     count = jnp.where(first, 0, 1)
-    steps = s.steps + count
-    done = reached | (~accept & tiny) | (first & ~ok)
     return _Arc(
         sign=sign,
         y=jnp.where(keep, y1, s.y),
@@ -783,18 +780,23 @@ def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
         unit=unit,
         started=s.started | ok,
         near_fold=near_fold,
-        done=done | (steps >= opts.max_continuation_steps),
+        done=reached | (~accept & tiny) | (first & ~ok),
         reached=reached,
         y_over=jnp.where(reached, y1, s.y_over),
         lam_over=jnp.where(reached, lam1, s.lam_over),
-        steps=steps,
+        steps=s.steps + count,
         iterations=s.iterations + count * nit,
-        collapsed=done,
     )
 
 
-def _arc_start(y0, options: SolverOptions, active=True) -> _Arc:
-    """The continuation's state before its first step (done when not `active`)."""
+def _arc_over(s: _Arc, options: SolverOptions):
+    """Whether the continuation has stopped: done (reached, or the arc step collapsed), or
+    out of max_continuation_steps."""
+    return s.done | (s.steps >= options.max_continuation_steps)
+
+
+def _arc_start(y0, options: SolverOptions) -> _Arc:
+    """The continuation's state before its first step."""
     false, zero = jnp.asarray(False), jnp.zeros(())
     return _Arc(
         sign=zero,
@@ -806,22 +808,19 @@ def _arc_start(y0, options: SolverOptions, active=True) -> _Arc:
         unit=jnp.ones(()),
         started=false,
         near_fold=false,
-        done=~jnp.asarray(active),
+        done=false,
         reached=false,
         y_over=y0,
         lam_over=zero,
         steps=jnp.asarray(0),
         iterations=jnp.asarray(0),
-        collapsed=false,
     )
 
 
 def _stopped(s: _Arc):
     """Why a continuation that neither reached its target nor found a fold stopped: its
-    arc step collapsed, or it ran out of steps while the load still rose."""
-    return RESULTS.where(
-        s.collapsed, RESULTS.continuation_failed, RESULTS.continuation_steps_exhausted
-    )
+    arc step collapsed (done), or it ran out of steps while the load still rose."""
+    return RESULTS.where(s.done, RESULTS.continuation_failed, RESULTS.continuation_steps_exhausted)
 
 
 def _fold_result(s: _Arc):
@@ -987,7 +986,7 @@ def _continuation(problem, y0, target, options: SolverOptions) -> _Arc:
         arc, y, lam = _arc_step(s)
         return _arc_advance(s, _newton_lean(problem, y, lam, corrector, arc=arc), target, options)
 
-    return lax.while_loop(lambda s: ~s.done, body, _arc_start(y0, options))
+    return lax.while_loop(lambda s: ~_arc_over(s, options), body, _arc_start(y0, options))
 
 
 def _path(problem, y_start, y_und, options: SolverOptions, chord=None, phase=0):
@@ -1030,8 +1029,9 @@ def _path(problem, y_start, y_und, options: SolverOptions, chord=None, phase=0):
         off_branch = s.reached & (~newton.ok | (newton.sign != s.sign))
         code = RESULTS.where(off_branch, RESULTS.nonlinear_divergence, code)
         code = RESULTS.where(p == 0, RESULTS.successful, code)
-        stopped = s1.done & ~s1.reached
-        after_arc = jnp.where(s1.done, jnp.where(s1.reached, 2, 3), 1)
+        over = _arc_over(s1, options)
+        stopped = over & ~s1.reached
+        after_arc = jnp.where(over, jnp.where(s1.reached, 2, 3), 1)
         phase = jnp.select([p == 0, cont], [jnp.where(direct_ok, 3, 1), after_arc], 3)
         y = jnp.where(cont, s1.y, newton.y)
         lam = jnp.where(cont, s1.lam, one)

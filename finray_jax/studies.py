@@ -337,8 +337,6 @@ def clamp_study(
             ad = Adaptor(front_base="pinned", back_clamp_length=l, support_length=support_length)
             say(f"{d:g} mm object, l_c = {l:g} mm")
             g = grasp(with_adaptor(base, ad), **how)
-            if not g.converged:
-                say(f"{d:g} mm object, l_c = {l:g} mm: no grasp ({_why_not(g, actuator_force)})")
             if g.converged:
                 cells["normal_force"][i, j] = float(g.contact.normal_force)
                 cells["closing_reached"][i, j] = float(g.closing)
@@ -346,6 +344,8 @@ def clamp_study(
                     say(f"{d:g} mm object: release trace (mu = {friction:g})")
                     tr = release_force(g, step=pull_step, friction=friction)
                     cells["holding_force"][i, j] = tr.peak  # (NaN: no point of it solved)
+            else:
+                say(f"{d:g} mm object, l_c = {l:g} mm: no grasp ({_why_not(g, actuator_force)})")
             solved[i, j] = True
             if record is not None:
                 keep()
