@@ -167,3 +167,33 @@ def without_jacobian(sol):
     """The Solution without its Jacobian factors (a warm start from it is then one from its
     deformation alone)."""
     return eqx.tree_at(lambda s: s.jacobian, sol, None, is_leaf=lambda x: x is None)
+
+
+def contact_wrench(finger, sol, load_factor=1.0):
+    """Total force and moment about the origin that the objects and the support apply to
+    the finger's main beams, from the solution alone (not from the contact law).
+
+    Within a segment only contact and distributed loads act (point loads, crossbeams and
+    the tip junction act at cuts), and n' = -f, (m + p x n)' = -(l + p x f) there. So on
+    each segment block (its start row, then its flexible part) the external wrench is
+    -(n) and -(m + p x n) from the block's first row to its last; the distributed loads'
+    share is taken off. Returns (force (3,), moment (3,)) in N and N mm.
+    """
+    from finray_jax import DistributedLoad
+
+    force, moment = np.zeros(3), np.zeros(3)
+    for b, beam in ((0, sol.front), (1, sol.back)):
+        rows = sol.steps + 2
+        p = np.asarray(beam.position).reshape(-1, rows, 3)
+        n = np.asarray(beam.force).reshape(-1, rows, 3)
+        m = np.asarray(beam.moment).reshape(-1, rows, 3)
+        invariant = m + np.cross(p, n)
+        force -= np.sum(n[:, -1] - n[:, 0], axis=0)
+        moment -= np.sum(invariant[:, -1] - invariant[:, 0], axis=0)
+        for load in finger.loads:
+            if isinstance(load, DistributedLoad) and load.beam == b:
+                s0, s1 = (float(x) for x in load.s_range)
+                f = load_factor * np.asarray(load.force_per_length)
+                force -= load_factor * np.asarray(load.total_force)
+                moment -= np.cross(integrate_position(beam, s0, s1), f)
+    return force, moment

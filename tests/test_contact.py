@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import global_balance, without_jacobian
+from helpers import contact_wrench, global_balance, without_jacobian
 
 import finray_jax as fr
 import finray_jax.io
@@ -103,8 +103,8 @@ def _ellipse_test_points(a, b, rng):
 def test_ellipse_distance_is_exact_inside_and_out(center, axes, angle):
     """Against the nearest of 100k points on the boundary (the sign from the implicit
     equation), at points inside (the centre and the axes included), on the axes and
-    outside: it used to give -a for -b at the centre, and wrong values deep inside near
-    the major axis (its Newton search stalled on the farthest point there)."""
+    outside; the centre (where the distance is -b) and the points deep inside near the
+    major axis are the hard cases."""
     a, b = axes
     c, s = np.cos(angle), np.sin(angle)
     rot = np.array([[c, -s], [s, c]])
@@ -360,8 +360,7 @@ MODIFIED = fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_lengt
 def test_a_flat_face_pressed_on_the_front_beam(finger1):
     """A box's flat face 0.5 mm in front of the straight front beam first touches it all
     along (14 segments), more than the near ones: the grasp goes on with every segment
-    (it used to stop at the first contact with `contact_outside_near_segments`) and gives
-    the grasp of a finger that always uses every segment."""
+    and gives the grasp of a finger that always uses every segment."""
     box = fr.RoundedRectangle((-22.0, 75.0), (20.0, 35.0), corner_radius=2.0)
     finger = eqx.tree_at(lambda f: f.objects, finger1, (box,))
     g = fr.grasp(finger, 3.0)
@@ -380,21 +379,43 @@ def grasps(finger1):
     return original, modified
 
 
-def _balance(g: fr.GraspSolution):
-    sol = g.solution
-    total = sol.reactions_front.force + sol.reactions_back.force
-    return total + g.contact.support_force + g.contact.force
-
-
 @pytest.mark.parametrize("which", [0, 1], ids=["original", "modified"])
 def test_grasp_balances_and_respects_the_penetration_limit(grasps, finger1, which):
+    """Force and moment balance of the whole finger: the objects' contact force (the
+    library's ContactResult.force) and the support's force, with the contact moment from
+    the solution (helpers.contact_wrench), plus the base reactions and the loads, sum to
+    zero. Moments are about the origin (the front beam's base). Scale: the largest force
+    term times the finger's length (front beam length, 120 mm), N mm; forces are compared
+    with the largest force term. Every junction and jump is enforced to Newton's tolerance
+    (scaled residual ~1e-13) and n and m + p x n are carried through each segment exactly
+    by the segment jumps that define the contact wrench, so the sums are zero to rounding:
+    1e-9 of the scale."""
     g = grasps[which]
     assert g.converged
-    scale = float(g.contact.normal_force)
-    assert scale > 0.1
-    # Contact forces balance everything the adaptor applies (reactions and support).
-    assert float(jnp.max(jnp.abs(_balance(g)))) < 1e-3 * scale
-    # The moment balance about the origin, with the contact forces integrated along s.
+    sol, finger = g.solution, g.finger
+    assert float(g.contact.normal_force) > 0.1
+    force, moment, _ = global_balance(finger, sol)  # reactions and loads
+    c_force, c_moment = contact_wrench(finger, sol)
+    forces = [
+        np.asarray(x)
+        for x in (
+            sol.reactions_front.force,
+            sol.reactions_back.force,
+            g.contact.force,
+            g.contact.support_force,
+        )
+    ]
+    largest = max(float(np.max(np.abs(f))) for f in forces)
+    length = float(np.linalg.norm(np.asarray(finger.tip) - np.asarray(finger.front_base)))
+    assert largest > 0.1 and length > 100.0
+    # The wrench taken from the solution is the objects' and the support's together.
+    np.testing.assert_allclose(c_force, forces[2] + forces[3], rtol=0, atol=1e-9 * largest)
+    total_force = force + forces[2] + forces[3]
+    total_moment = moment + c_moment
+    assert np.max(np.abs(total_force)) < 1e-9 * largest, total_force
+    assert np.max(np.abs(total_moment)) < 1e-9 * largest * length, total_moment
+    # The contact's moment is not negligible against the scale (the check is not vacuous).
+    assert np.max(np.abs(c_moment)) > 1e-2 * largest * length
     assert float(g.contact.max_penetration) <= 0.02 * float(finger1.front.thickness) + 1e-12
     assert float(g.contact.contact_length) > 0
     assert float(g.contact.actuator_force) > 0
@@ -720,9 +741,9 @@ def test_release_trace_follows_one_branch_whatever_the_step(grasps):
 
 
 def test_closing_steps_never_carry_an_object_through_a_beam():
-    """A closing step is at most half the object's depth below its centre: a huge closing
-    (1000 mm on Finger-1's 18 mm cylinder took 125 mm steps) no longer jumps the object
-    clean through the finger into a contact-free 'converged' state."""
+    """A closing step is at most half the object's depth below its centre, so a huge
+    closing (1000 mm on Finger-1's 18 mm cylinder) cannot jump the object clean through
+    the finger into a contact-free 'converged' state."""
     finger = fr.ref_finger_a("L1")
     cyl = dataclasses.replace(finger, objects=(fr.Circle((30.0, 60.0), 9.0),))
     assert _closing_step_cap(cyl) == pytest.approx(4.5)
