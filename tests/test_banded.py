@@ -170,7 +170,8 @@ def test_factor_picks_lapack_on_cpu(monkeypatch):
     """On the CPU the factorisation calls LAPACK (the element-wise step is about 4x slower
     there): a factor traced with the element-wise step poisoned still gives the right
     answer on the CPU backend."""
-    assert jax.devices()[0].platform == "cpu"
+    if jax.default_backend() != "cpu":
+        pytest.skip(f"checks the CPU's choice; the default backend is {jax.default_backend()}")
     poisoned = lambda W, nb: (W * jnp.nan, jnp.zeros(W.shape[0], jnp.int32), jnp.nan * W[0, 0])
     monkeypatch.setattr(_banded, "_panel_elementwise", poisoned)
     plan = _banded.plan_band([{0, 1}] * 3 + [{0, 1}] * 3, 3, 2)
