@@ -144,8 +144,8 @@ _OBJECT = (
     ],
 )
 def test_validate_runs_the_grasp_checks(tmp_path, old, new, message):
-    """A file `finray grasp` would refuse is not 'OK' for `finray validate` (it was): the
-    same checks, without solving, naming the file and the key; exit 1."""
+    """A file `finray grasp` would refuse is not 'OK' for `finray validate`: the same
+    checks, without solving, naming the file and the key; exit 1."""
     text = pathlib.Path(GRASP).read_text()
     assert old in text
     path = tmp_path / "bad.toml"

@@ -650,9 +650,8 @@ def test_contact_force_gradient_matches_central_differences(tmp_path):
 def test_reanchoring_keeps_the_initial_discretisation(tmp_path):
     """After a failed warm start the optimiser grasps afresh at the trial design. At a
     support length of 48.2 mm that finger's own cuts give the back beam one segment more
-    (384 unknowns instead of 378), which the compiled loss cannot take: the re-grasp used
-    them and the next evaluation died in a reshape. It is now solved on the initial grasps'
-    segment table."""
+    (384 unknowns instead of 378), which the compiled loss cannot take: the re-grasp must
+    be solved on the initial grasps' segment table."""
     p = _load(_clamp_text(iterations=1), tmp_path)
     setup = O._setup(p)
     x = np.array([17.09, 48.24])

@@ -215,7 +215,7 @@ def test_contact_lowers_the_assumed_order():
 @pytest.mark.slow
 def test_spatial_l2_is_as_resolved_as_planar():
     """3-D ref-A L2 at 10 steps: the frame's re-projection after every step keeps the tip
-    error near the planar model's (5e-6). Without it the 3-D error was 1.7e-4."""
+    error near the planar model's (5e-6)."""
     check = check_resolution(fr.ref_finger_a("L2"), mode="spatial")
     assert check.status == "converged" and check.reliable
     assert check.tip_relative_error < 2e-5, check

@@ -13,11 +13,9 @@ from helpers import bisshopp_drucker, circular_arc
 
 import finray_jax as fr
 
-# finray_jax/_cantilever.py multiplies an int64 arange by a float64 length (the `s` grid,
-# `jnp.arange(segments)[:, None] * L`), which strict dtype promotion rejects (see
-# conftest.py). The closed-form checks run under standard promotion whatever conftest
-# sets, so that they test the physics; test_cantilever_under_strict_promotion keeps the
-# dtype bug visible.
+# The closed-form checks run under standard dtype promotion whatever conftest sets, so
+# that they test the physics alone; test_cantilever_under_strict_promotion checks that
+# solve_cantilever also runs under strict promotion.
 standard_promotion = jax.numpy_dtype_promotion("standard")
 
 # An effectively inextensible, unshearable rod: a thin band, L = 100 mm, t = 0.01 mm,
@@ -62,9 +60,9 @@ def test_bisshopp_drucker_reference_itself(alpha):
 
 @pytest.mark.parametrize("alpha", [0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0])
 def test_elastica_tip_force_planar(alpha):
-    # The default discretisation (4 segments x 10 Tsit5 steps) is already ~1e-10 accurate
-    # here; the tolerance 1e-6 (relative) is set by the brief, and is 100x above the
-    # model's own 1e-8 departure from the inextensible elastica.
+    # The default discretisation (4 segments x 10 Tsit5 steps) is ~1e-10 accurate here;
+    # the tolerance 1e-6 (relative) is 100x above the model's own 1e-8 departure from the
+    # inextensible elastica.
     P = alpha * EI / L**2
     x, z, _ = bisshopp_drucker(alpha)
     with standard_promotion:

@@ -1,8 +1,7 @@
 """The scripts outside the package (benchmarks/, optimize/) name only what finray_jax has.
 
 They run for minutes, so the default suite does not run them; a refactor that moves a name
-would break them unseen (benchmarks/optimizer.py called `optimizer._loss_only` for eight
-sessions after it moved to `_objective`). This reads each script's syntax tree instead:
+would break them unseen. This reads each script's syntax tree instead:
 every `from finray_jax... import NAME` and every attribute `ALIAS.NAME` of an imported
 finray_jax module must exist.
 """

@@ -218,8 +218,8 @@ def test_clamp_study_at_equal_actuator_force_by_holding_force(tmp_path):
 
 
 def test_clamp_study_best_is_nan_where_no_grasp_of_a_size_converged():
-    """(It was the first clamp length, argmax of all -inf.) The holding force, when
-    measured, decides over the contact force."""
+    """A size with no converged grasp has no best clamp length (NaN, not the first one).
+    The holding force, when measured, decides over the contact force."""
     lc = np.array([0.0, 10.0, 20.0])
     force = np.array([[np.nan, np.nan, np.nan], [1.0, 3.0, 2.0]])
     st = studies.ClampStudy(np.array([18.0, 35.0]), lc, 60.0, force)

@@ -203,7 +203,7 @@ def test_a_sweep_in_which_no_design_converged_exits_3_and_says_why(sweep_file, t
     assert [r[-1] for r in rows] == [
         f"crossbeams[1].thickness must be positive, got {t}" for t in ("-1.2", "-0.8") * 3
     ]
-    # nothing to plot: no figure (it used to be empty axes), and none claimed
+    # nothing to plot: no figure, and none claimed
     assert not (out / "sweep.png").exists() and "sweep.png" not in stdout
     # Run again (finished): the same answer.
     code, _, err = run(["sweep", str(sweep_file), "--out", str(out)])
@@ -225,7 +225,7 @@ def test_a_sweep_with_some_converged_designs_exits_0(sweep_file, tmp_path):
 
 
 def _drop_reason_column(path):
-    """What the code before the reason column wrote: the same rows without it."""
+    """The results file in the format without a reason column: the same rows without it."""
     head, rows = _csv(path)
     assert head[-1] == "reason"
     text = "".join(",".join(r[:-1]) + "\n" for r in [head, *rows])

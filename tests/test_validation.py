@@ -240,8 +240,7 @@ def test_back_base_on_or_near_the_front_beam(finger, back_base):
 
 def test_base_too_close_names_both_thicknesses(finger):
     """A base far from the other beam but thicker than the gap: the message names the two
-    thickness fields, not only the base (a 1e308 mm thick beam used to read as a misplaced
-    back base)."""
+    thickness fields, not only the base."""
     thick = _main_beams(finger, front=fr.Section(30.0, 20.0), back=fr.Section(60.0, 20.0))
     _raises(
         thick,
