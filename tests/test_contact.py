@@ -421,6 +421,68 @@ def test_grasp_balances_and_respects_the_penetration_limit(grasps, finger1, whic
     assert float(g.contact.actuator_force) > 0
 
 
+def _line_of_action_s(beam, force, moment):
+    """Arc length at which the deformed centreline crosses the line of action of a planar
+    wrench (force, moment about the origin): (p(s) x F)_y = M_y, with p interpolated
+    linearly between solution points (the root moves along the beam, across F, where that
+    interpolation is exact to first order)."""
+    s, p = np.asarray(beam.s), np.asarray(beam.position)
+    gap = np.cross(p, force)[:, 1] - moment[1]
+    i = np.flatnonzero(np.diff(np.sign(gap)) != 0)
+    assert i.size == 1, i
+    i = int(i[0])
+    return float(s[i] - gap[i] * (s[i + 1] - s[i]) / (gap[i + 1] - gap[i]))
+
+
+def test_a_point_like_contact_equals_its_point_load(finger1, grasps):
+    """A stiff 1 mm cylinder pressed 1 mm into Finger-1's front beam between crossbeams
+    (s = 52.5) touches it over about 0.66 mm. Statically, its pressure is its resultant F
+    acting on its line of action, which meets the centreline at s_c; the same finger with
+    a point load F at s_c (no objects) must give the same tip, to
+
+    - the smoothing error of spreading F over the patch: with the tip displacement u(s)
+      under F at s, and the pressure's variance sigma^2 about s_c (at most a^2 for a patch
+      of half-length a), |du| <= a^2 / 2 |u''(s_c)|; u'' is taken from point-load solves
+      at s_c +- 1 mm (the same span between crossbeams: same compiled program);
+    - the grasp's integration error at its 16 steps per segment (the C1 penalty gives
+      second order): its tip moves by 1.1e-5 mm from 16 to 32 steps, so by Richardson the
+      16-step tip is off by 1.5e-5 mm; 3e-5 mm is allowed for it.
+    The point-load solve's own integration error (10 Tsit5 steps per segment) is below
+    1e-9 mm. Both bounds together are ~2e-4 of the 0.107 mm tip displacement; a contact
+    force or lever arm off by that much fails. (`grasps` is requested so that the grasp
+    program, the same for any one cylinder on Finger-1, is compiled once per module.)"""
+    radius, a, depth, clear = 1.0, 52.5, 1.0, 0.05
+    t = float(finger1.front.thickness)
+    cyl = fr.Circle((-(radius + t / 2) - clear, a), radius)
+    g = fr.grasp(eqx.tree_at(lambda f: f.objects, finger1, (cyl,)), depth + clear)
+    assert g.converged
+    sol = g.solution
+    force = np.asarray(g.contact.force)
+    c_force, c_moment = contact_wrench(g.finger, sol)
+    np.testing.assert_allclose(c_force, force, rtol=0, atol=1e-12)
+    assert float(np.linalg.norm(g.contact.support_force)) == 0.0
+    s_c = _line_of_action_s(sol.front, force, c_moment)
+    half = 0.5 * float(g.contact.contact_length)
+    assert abs(s_c - a) < half < 1.0  # point-like, and s_c inside the patch
+
+    bare = eqx.tree_at(lambda f: f.objects, finger1, ())
+    topo = fr.topology_of(bare.with_loads(fr.PointLoad(0, s_c, tuple(force))), "planar")
+
+    def tip(s):
+        f = bare.with_loads(fr.PointLoad(0, s, tuple(force)))
+        point = fr.solve_finger(f, topology=topo)
+        assert point.converged
+        return np.asarray(point.tip.displacement)
+
+    h = 1.0
+    u_minus, u_c, u_plus = tip(s_c - h), tip(s_c), tip(s_c + h)
+    curvature = np.abs(u_plus - 2.0 * u_c + u_minus) / h**2  # |u''(s_c)| per component
+    tol = 0.5 * half**2 * curvature + 3e-5
+    diff = np.abs(np.asarray(sol.tip.displacement) - u_c)
+    assert np.all(diff <= tol), (diff, tol)
+    assert np.linalg.norm(u_c) > 0.05  # the load really moves the tip
+
+
 def test_modified_adaptor_grips_harder(grasps):
     original, modified = grasps
     assert float(modified.contact.normal_force) > 2.0 * float(original.contact.normal_force)
