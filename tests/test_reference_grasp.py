@@ -14,9 +14,9 @@ the penetration below 2 % of the front beam's thickness; here the grasp is solve
 k with `stiffen=False`), the same delta, the same support line (the back beam's base
 centreline along its undeformed tangent, gap = distance, no half-thickness).
 
-Tolerance: 1 % of the reference value, as the issue asks, with two floors:
+Tolerance: 1 % of the reference value, as asked of this comparison, with two floors:
 * the reference's own error band, 3 x its Richardson mesh-error estimate (stored per
-  output; at most 0.02 % of the quantities' scales on the finest mesh);
+  output; at most 0.03 % of the quantities' scales on the finest mesh);
 * 0.1 % of the quantity's scale (forces: the case's normal force; tip displacements: the
   tip displacement's magnitude; moments: the larger base moment), for components far
   smaller than their scale, e.g. the original adaptor's contact force Fz (1e-3 of the
@@ -24,11 +24,102 @@ Tolerance: 1 % of the reference value, as the issue asks, with two floors:
   finray grasp integrates 0.3 mm steps: its normal force moves by 3e-5 relative from 16
   to 128 steps, docs/grasping.md; the reference's penalty lumping at nodes converges as h^2).
 
-Measured (finray_jax vs the finest reference mesh; rel = (ours - theirs) / theirs, or /
-scale where marked *):
+Why the modified adaptor differs more (0.1-0.5 %) than the original (< 2e-4): its grasps
+shear the beams by up to 6 % (the back beam where it presses on the support's end at
+l_s, the front beam at the cylinder; the original's stay below 0.4 %). There a
+corotational Timoshenko element (shear = the angle between chord and section, forces
+resolved on the chord) and finray_jax's geometrically exact rod (shear = the tangent's
+component along the section normal, forces on the directors) differ at first order in
+that strain. With nearly shear-rigid sections (shear coefficient 100) both agree to
+1e-4 on the same grasps (test_shear_rigid_modified_grasp_matches_opensees_closely), so
+the difference is the beam theory's finite-strain shear, not the contact, the support or
+the adaptor. The modified grasps depend strongly on the penalty: the rigid-contact limit (stored
+penalty study) lies 2-15 % from the outputs at finray_jax's k (0.5-1.3 % for the
+original adaptor), because `grasp` stiffens k for the objects' penetration only, and the
+support's reaches 0.19 mm at 4 mm closing.
 
-    case        d   output              ours          theirs        rel
-    (filled in below by the measured run)
+Measured (finray_jax vs the finest reference mesh; rel = (ours - theirs) / |theirs|, or
+/ scale where marked *; the pinned front base's moment is 0 on both sides):
+
+    case         d  output                            ours        theirs        rel
+    original     2  contact_force.Fx              0.326394      0.326392  +5.76e-06
+    original     2  contact_force.Fz          -0.000297589   -0.00028663 -3.36e-05*
+    original     2  normal_force                  0.326489      0.326479  +3.09e-05
+    original     2  tip.dx                        0.202839      0.202841  -1.01e-05
+    original     2  tip.dz                     -0.00746141   -0.00746407 +1.31e-05*
+    original     2  tip.rotation                 0.0266545     0.0266545  -4.40e-08
+    original     2  reactions.front.Fx           -0.107082     -0.107085  +2.64e-05
+    original     2  reactions.front.Fz           -0.407858      -0.40787  +2.82e-05
+    original     2  reactions.front.My_ccw         1.70959       1.70962  -1.68e-05
+    original     2  reactions.back.Fx            -0.219312     -0.219307  -2.15e-05
+    original     2  reactions.back.Fz             0.408156      0.408156  -1.33e-06
+    original     2  reactions.back.My_ccw          1.54514       1.54508  +4.19e-05
+    original     4  contact_force.Fx              0.754381      0.754379  +2.30e-06
+    original     4  contact_force.Fz           -0.00174583   -0.00174849 +3.53e-06*
+    original     4  normal_force                  0.754708      0.754672  +4.87e-05
+    original     4  tip.dx                        0.488692      0.488675  +3.46e-05
+    original     4  tip.dz                       -0.131089     -0.131114  +1.85e-04
+    original     4  tip.rotation                 0.0623325     0.0623329  -7.40e-06
+    original     4  reactions.front.Fx           -0.275722     -0.275742  +7.09e-05
+    original     4  reactions.front.Fz            -0.94012     -0.940115  -5.68e-06
+    original     4  reactions.front.My_ccw          4.0759       4.07615  -5.95e-05
+    original     4  reactions.back.Fx            -0.478658     -0.478637  -4.45e-05
+    original     4  reactions.back.Fz             0.941866      0.941863  +2.83e-06
+    original     4  reactions.back.My_ccw          3.50008       3.49982  +7.40e-05
+    original     6  contact_force.Fx               1.17607       1.17606  +3.15e-06
+    original     6  contact_force.Fz           -0.00475356    -0.0048091 +4.72e-05*
+    original     6  normal_force                   1.17667       1.17663  +3.30e-05
+    original     6  tip.dx                        0.783569      0.783494  +9.61e-05
+    original     6  tip.dz                       -0.384106     -0.384177  +1.85e-04
+    original     6  tip.rotation                  0.098093     0.0980942  -1.20e-05
+    original     6  reactions.front.Fx           -0.472892     -0.472938  +9.77e-05
+    original     6  reactions.front.Fz            -1.46271      -1.46264  -4.74e-05
+    original     6  reactions.front.My_ccw         6.52039       6.52102  -9.70e-05
+    original     6  reactions.back.Fx            -0.703176     -0.703126  -7.10e-05
+    original     6  reactions.back.Fz              1.46746       1.46745  +9.43e-06
+    original     6  reactions.back.My_ccw          5.32139       5.32081  +1.09e-04
+    modified     2  contact_force.Fx               9.20785       9.20191  +6.45e-04
+    modified     2  contact_force.Fz             -0.518711     -0.518265 -4.83e-05*
+    modified     2  normal_force                   9.23282       9.22652  +6.83e-04
+    modified     2  tip.dx                         1.13327       1.13545  -1.92e-03
+    modified     2  tip.dz                      -0.0924411    -0.0925034 +5.47e-05*
+    modified     2  tip.rotation                 0.0333887      0.033326  +1.88e-03
+    modified     2  support_force.Fx              -8.39345      -8.38786  -6.66e-04
+    modified     2  support_force.Fz              -2.79782      -2.79595  -6.66e-04
+    modified     2  reactions.front.Fx          -0.0382671    -0.0382236 -4.72e-06*
+    modified     2  reactions.front.Fz            -0.28832     -0.288161 -1.72e-05*
+    modified     2  reactions.front.My_ccw               0  -9.06603e-16 +8.40e-17*
+    modified     2  reactions.back.Fx            -0.776131     -0.775827 -3.30e-05*
+    modified     2  reactions.back.Fz              3.60485       3.60238  +6.85e-04
+    modified     2  reactions.back.My_ccw         -10.8036      -10.7885  -1.40e-03
+    modified     4  contact_force.Fx               13.8393       13.8161  +1.68e-03
+    modified     4  contact_force.Fz              -1.09803        -1.094 -2.91e-04*
+    modified     4  normal_force                   13.9001        13.876  +1.74e-03
+    modified     4  tip.dx                         2.18573       2.18602  -1.36e-04
+    modified     4  tip.dz                       -0.466089     -0.465078  -2.17e-03
+    modified     4  tip.rotation                 0.0666458     0.0664955  +2.26e-03
+    modified     4  support_force.Fx               -12.556      -12.5335  -1.79e-03
+    modified     4  support_force.Fz              -4.18534      -4.17784  -1.79e-03
+    modified     4  reactions.front.Fx          -0.0363828     -0.036069 -2.26e-05*
+    modified     4  reactions.front.Fz           -0.173892     -0.176788 +2.09e-04*
+    modified     4  reactions.front.My_ccw               0  -1.24532e-15 +8.66e-17*
+    modified     4  reactions.back.Fx             -1.24691      -1.24646 -3.19e-05*
+    modified     4  reactions.back.Fz              5.45726       5.44863  +1.58e-03
+    modified     4  reactions.back.My_ccw         -14.4499      -14.3796  -4.89e-03
+    modified     6  contact_force.Fx               15.7566        15.736  +1.31e-03
+    modified     6  contact_force.Fz              -1.64326      -1.64139  -1.14e-03
+    modified     6  normal_force                   15.8615       15.8401  +1.35e-03
+    modified     6  tip.dx                         2.94466       2.93866  +2.04e-03
+    modified     6  tip.dz                        -1.01518      -1.01548  +2.91e-04
+    modified     6  tip.rotation                 0.0978349     0.0978074  +2.81e-04
+    modified     6  support_force.Fx              -14.3098      -14.2924  -1.21e-03
+    modified     6  support_force.Fz              -4.76993      -4.76414  -1.21e-03
+    modified     6  reactions.front.Fx          -0.0413112    -0.0415807 +1.70e-05*
+    modified     6  reactions.front.Fz           0.0295224     0.0285123 +6.38e-05*
+    modified     6  reactions.front.My_ccw               0  -1.45415e-15 +8.29e-17*
+    modified     6  reactions.back.Fx             -1.40552      -1.40201 -2.21e-04*
+    modified     6  reactions.back.Fz              6.38366       6.37703  +1.04e-03
+    modified     6  reactions.back.My_ccw         -17.5121      -17.5314  +1.10e-03
 """
 
 import json
@@ -138,9 +229,7 @@ def test_comparison_table(grasps, capsys):
             if adaptor == "original" and name.startswith("support"):
                 continue
             rel = _fmt_rel(ours, theirs, _scale(ref, name))
-            lines.append(
-                f"{adaptor:10s} {d:3g}  {name:24s} {ours:13.6g} {theirs:13.6g} {rel:>10s}"
-            )
+            lines.append(f"{adaptor:10s} {d:3g}  {name:24s} {ours:13.6g} {theirs:13.6g} {rel:>10s}")
     with capsys.disabled():
         print("\n" + "\n".join(lines))
 
@@ -157,6 +246,42 @@ def test_grasp_matches_opensees(grasps, adaptor, d, group):
         for name, ours, theirs, diff, tol in _compare(grasps[adaptor, d], adaptor, d)
         if name.startswith(group) and not abs(diff) <= tol
     ]
+    assert not bad, bad
+
+
+@pytest.fixture(scope="module")
+def shear_rigid_grasps():
+    """The modified adaptor's grasps with nearly shear-rigid sections (k = 100)."""
+    finger, _ = load_finger(ROOT / "examples" / FILES["modified"])
+    ks = REF["modified_shear_rigid"]["shear_k"]
+    finger = eqx.tree_at(lambda f: f.material.shear_coefficient, finger, jnp.asarray(ks))
+    out = {}
+    for d in CLOSINGS:
+        g = fr.grasp(
+            _at_stiffness(finger, REF["modified"][f"{d:g}"]["k"]), closing=d, stiffen=False
+        )
+        assert g.converged
+        out[d] = g
+    return out
+
+
+@pytest.mark.parametrize("d", CLOSINGS)
+def test_shear_rigid_modified_grasp_matches_opensees_closely(shear_rigid_grasps, d):
+    """Without shear strain the two models are the same rod: the modified adaptor's
+    0.1-0.5 % differences (module docstring) shrink to 1e-4. Tolerance 0.05 % of the value
+    (0.01 % of the scale for small components), or 3 x the reference's mesh error."""
+    ref = REF["modified_shear_rigid"][f"{d:g}"]
+    ours = _ours(shear_rigid_grasps[d])
+    bad = []
+    for name in _flat_names():
+        theirs = _get(ref["values"], name)
+        tol = max(
+            5e-4 * abs(theirs),
+            1e-4 * _scale(ref["values"], name),
+            MESH * _get(ref["mesh_error"], name),
+        )
+        if not abs(ours[name] - theirs) <= tol:
+            bad.append(f"{name}: ours {ours[name]:.6g} theirs {theirs:.6g} > {tol:.3g}")
     assert not bad, bad
 
 
