@@ -4,12 +4,14 @@ PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# The openseespy reference solver (the `bench` extra) and the system BLAS/LAPACK it loads.
+REFERENCE := $(VENV)/.installed-reference
 # Test processes (pytest-xdist; whole files per process, as they share compiled programs).
 # Each holds up to ~5 GB; 0 runs the suite in this process.
 TEST_WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
-.PHONY: demo test test-all bench lint clean
+.PHONY: demo test test-fast bench lint clean
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) on PATH (or run: make PYTHON=python3 ...)"; exit 1; }
@@ -18,14 +20,27 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q -e ".[test]"
 	touch $(STAMP)
 
+$(REFERENCE): $(STAMP)
+	@ldconfig -p 2>/dev/null | grep -q 'liblapack\.so\.3' || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libblas3 liblapack3 >/dev/null; \
+	  else \
+	    echo "openseespy needs the system BLAS/LAPACK (Debian: apt-get install libblas3 liblapack3)"; exit 1; \
+	  fi; }
+	$(BIN)/python -m pip install -q -e ".[test,bench]"
+	touch $(REFERENCE)
+
 demo: $(STAMP)
 	$(BIN)/finray demo --out demo_output
 
-test: $(STAMP)
-	$(PYTEST) -m "not slow and not opensees"
-
-test-all: $(STAMP)
+# Everything: the default and slow tests, the notebooks, the optimize/ scripts, `finray
+# demo`, and the comparisons with the openseespy reference (re-run as well).
+test: $(REFERENCE)
 	$(PYTEST) --runslow
+
+# The developers' subset: no slow and no openseespy-re-running tests.
+test-fast: $(STAMP)
+	$(PYTEST) -m "not slow and not opensees"
 
 bench: $(STAMP)
 	taskset -c 0 $(BIN)/python benchmarks/solve.py
@@ -36,11 +51,9 @@ lint: $(STAMP)
 clean:
 	rm -rf $(VENV) demo_output .pytest_cache
 
-# Side-by-side with openseespy, PyElastica and a SciPy single-shooting solver (issue 5);
-# needs the bench extra (and the system BLAS/LAPACK for openseespy: see shared/NUMERICS.md).
+# Side-by-side with openseespy, PyElastica and a SciPy single-shooting solver.
 .PHONY: bench-peers
-bench-peers: $(STAMP)
-	$(BIN)/python -m pip install -q -e ".[bench]"
+bench-peers: $(REFERENCE)
 	taskset -c 0 $(BIN)/python benchmarks/peers.py
 	taskset -c 0 $(BIN)/python benchmarks/gradients.py
 	taskset -c 0 $(BIN)/python benchmarks/scaling.py

@@ -3,25 +3,37 @@ promotion, and slow tests opt-in (--runslow or -m slow).
 """
 
 import gc
+import os
 
 import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
-# No persistent compilation cache in the test process. Setting jax_compilation_cache_dir
-# back to None does not turn one off: jax decides at its first compile whether the cache
-# is used (compilation_cache.is_cache_used latches) and opens it at the first compile
-# that finds a directory set (_initialize_cache, once), then reads and writes it for the
-# rest of the process. With this off, neither ever happens.
-jax.config.update("jax_enable_compilation_cache", False)
+
+# JAX's persistent compilation cache, when FINRAY_TEST_CACHE_DIR names a directory (`make
+# test` does): the suite's processes (pytest-xdist workers, and the CLI, scripts and
+# notebook kernels it runs as subprocesses, through jax's own environment variables) and
+# the recompiles after a cache clear (below) load a program compiled once instead of
+# compiling it again. The cache key holds the program, the compiler's options and the
+# versions, so a changed solver never loads a stale program. Without the variable no
+# persistent cache is used (jax decides at its first compile whether it is used, and keeps
+# to it for the life of the process).
+CACHE_DIR = os.environ.get("FINRAY_TEST_CACHE_DIR", "").strip() or None
+if CACHE_DIR:
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = CACHE_DIR
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.2"
+    jax.config.update("jax_compilation_cache_dir", CACHE_DIR)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+else:
+    jax.config.update("jax_enable_compilation_cache", False)
 
 
 @pytest.fixture(autouse=True)
-def _no_persistent_cache(monkeypatch):
-    """No CLI call in-process sets a compilation cache directory (it would be unused, see
-    above: the suite twice segfaulted in jax's cache code when a CLI call had opened the
-    user's cache in-process). A test of the cache settings sets its own and restores it."""
+def _no_cli_cache(monkeypatch):
+    """No CLI call, in this process or a subprocess, points the compilation cache at the
+    user's directory (FINRAY_NO_CACHE): the suite's cache, if any, is set above. A test of
+    the cache settings sets its own."""
     monkeypatch.setenv("FINRAY_NO_CACHE", "1")
 
 
