@@ -34,9 +34,12 @@ demo: $(STAMP)
 	$(BIN)/finray demo --out demo_output
 
 # Everything: the default and slow tests, the notebooks, the optimize/ scripts, `finray
-# demo`, and the comparisons with the openseespy reference (re-run as well).
+# demo`, and the comparisons with the openseespy reference (re-run as well; a missing
+# reference fails the run instead of skipping its tests). The test processes and the CLI,
+# script and notebook processes they start share one persistent compilation cache.
+TEST_CACHE ?= $(CURDIR)/.cache/test-xla
 test: $(REFERENCE)
-	$(PYTEST) --runslow
+	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat
 
 # The developers' subset: no slow and no openseespy-re-running tests.
 test-fast: $(STAMP)
@@ -49,7 +52,7 @@ lint: $(STAMP)
 	$(BIN)/python -m pip install -q ruff && $(BIN)/ruff check . && $(BIN)/ruff format --check .
 
 clean:
-	rm -rf $(VENV) demo_output .pytest_cache
+	rm -rf $(VENV) demo_output .pytest_cache .cache
 
 # Side-by-side with openseespy, PyElastica and a SciPy single-shooting solver.
 .PHONY: bench-peers

@@ -83,6 +83,26 @@ def pytest_addoption(parser):
         default=False,
         help="also run tests marked slow (full resolution, limit loads)",
     )
+    parser.addoption(
+        "--require",
+        action="append",
+        default=[],
+        metavar="MODULE",
+        help="fail at start-up if MODULE cannot be imported, instead of skipping the tests "
+        "that need it (`make test` requires the openseespy reference and nbformat)",
+    )
+
+
+def pytest_configure(config):
+    import importlib
+
+    for name in config.getoption("--require"):
+        try:
+            importlib.import_module(name)
+        except Exception as error:  # (openseespy fails with an OSError without LAPACK)
+            raise pytest.UsageError(
+                f"--require {name}: cannot import {name!r} ({error}); its tests would be skipped"
+            ) from error
 
 
 def pytest_collection_modifyitems(config, items):
