@@ -644,8 +644,7 @@ def _validate_contact(finger: Finger) -> None:
         )
     if c.support_stiffness is not None:
         _positive(
-            "contact.support_stiffness",
-            _shaped("contact.support_stiffness", c.support_stiffness, ()),
+            "contact.support_stiffness", _shaped("contact.support_stiffness", c.support_stiffness, ())
         )
     if c.max_support_penetration is not None:
         ms = float(_finite("contact.max_support_penetration", c.max_support_penetration))

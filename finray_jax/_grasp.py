@@ -35,7 +35,6 @@ from ._solve import SolverOptions, _direct_core, prepare, resolve_mode, undeform
 from ._types import as_float
 
 GRASP_STEPS = 16  # default integration steps per segment for contact problems
-MAX_STIFFENING = 16.0  # the largest factor on a penalty stiffness in one round
 
 
 class ContactResult(eqx.Module):
@@ -150,9 +149,7 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         # segments it backs where no object is seen.
         to_objects = ~has_s & (has_o | ~backed)
         obj_part = jnp.where(
-            to_objects[:, None],
-            exact,
-            jnp.where((has_o & has_s)[:, None], scale[:, None] * so, 0.0),
+            to_objects[:, None], exact, jnp.where((has_o & has_s)[:, None], scale[:, None] * so, 0.0)
         )
         force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
         support = support + jnp.insert(jnp.sum(exact - obj_part, axis=0), 1, 0.0)
@@ -234,46 +231,6 @@ class GraspSolution(eqx.Module):
     @property
     def converged(self) -> bool:
         return bool(self.solution.result == RESULTS.successful)
-
-    def penetration_warnings(self) -> list[str]:
-        """A line for each penetration limit the grasp exceeds (none when both hold).
-
-        `grasp` stiffens a penalty until its limit holds, unless a stiffer penalty stops
-        converging: a contact pressed along a long stretch of a shooting segment makes
-        the segment's solution grow like exp(L (k / 4 EI)^(1/4)), and past a point Newton
-        cannot follow it. A shorter `Contact.segment_length` moves that point;
-        `rigid_contact_estimate` tells how far the answer is from rigid contact."""
-        c, f = self.contact, self.finger
-        out = []
-        checks = [
-            (
-                "an object",
-                c.max_penetration,
-                f.contact.max_penetration * f.front.thickness,
-                "contact.max_penetration",
-                self.stiffness,
-            ),
-        ]
-        if f.adaptor.support_length is not None:
-            checks.append(
-                (
-                    "the support",
-                    c.support_penetration,
-                    support_penetration_limit(f),
-                    "contact.max_support_penetration",
-                    self.support_stiffness,
-                )
-            )
-        for what, pen, limit, key, k in checks:
-            if float(pen) > float(limit) * (1.0 + 1e-9):
-                out.append(
-                    f"the penetration into {what}, {float(pen):.3g} mm, exceeds its limit "
-                    f"{float(limit):.3g} mm ({key}) at penalty stiffness {float(k):.4g} "
-                    f"N/mm^2: a stiffer one did not converge on "
-                    f"{f.contact.segment_length:g} mm shooting segments "
-                    "(contact.segment_length)"
-                )
-        return out
 
 
 def _moved(finger: Finger, displacement) -> Finger:
@@ -531,18 +488,13 @@ def grasp(
             u, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
             if not ok and u > 0:  # part of the way: go on from there
                 new, ok = tuple(a * (b / a) ** u for a, b in zip(old, new)), True
-            elif not ok:  # not a step: keep the last equilibrium (`penetration_warnings`)
-                ok = True
-                break
             if ok:
                 k, k_s = new
                 finger = _with_stiffness(finger, k, k_s)  # (at() closes over the new finger)
                 res = contact_result(at(t), sol, w)
                 seen = (float(res.max_penetration), float(res.support_penetration))
                 for i in range(2):
-                    orders[i] = _observed_order(
-                        old[i], new[i], pens[i], seen[i], onsets[i], orders[i]
-                    )
+                    orders[i] = _observed_order(old[i], new[i], pens[i], seen[i], onsets[i], orders[i])
                 pens = seen
                 stiffened = True
             rounds += 1
@@ -574,7 +526,7 @@ def _stiffer(k, pen, limit, onset, order):
     if pen <= limit:
         return k
     excess = (pen - onset) / max(limit - onset, 1e-12)
-    return k * min((1.3 * excess) ** (1.0 / order), MAX_STIFFENING)
+    return k * (1.3 * excess) ** (1.0 / order)
 
 
 def _observed_order(k0, k1, pen0, pen1, onset, order):
