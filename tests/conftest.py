@@ -3,6 +3,7 @@ promotion, and slow tests opt-in (--runslow or -m slow).
 """
 
 import gc
+import importlib
 import os
 
 import jax
@@ -94,8 +95,6 @@ def pytest_addoption(parser):
 
 
 def pytest_configure(config):
-    import importlib
-
     for name in config.getoption("--require"):
         try:
             importlib.import_module(name)
