@@ -40,6 +40,8 @@ from ._objects import HalfPlane as HalfPlane
 from ._objects import Polygon as Polygon
 from ._objects import RoundedRectangle as RoundedRectangle
 from ._reference import ref_finger_a as ref_finger_a
+from ._rigid import RigidEstimate as RigidEstimate
+from ._rigid import rigid_contact_estimate as rigid_contact_estimate
 from ._rod import Integrator as Integrator
 from ._rod import PlanarRod as PlanarRod
 from ._rod import SpatialRod as SpatialRod

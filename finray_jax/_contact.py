@@ -15,8 +15,11 @@ length about the centreline.
 
 The adaptor's rigid support behind the back beam is a line through the back beam's base
 along its undeformed tangent, acting over s in [0, l_s]: it pushes the back beam forward
-(toward the front beam) by the same law, with the gap measured as the back beam's
-displacement toward the support, and never pulls it.
+(toward the front beam) by the same law, with its own stiffness and smoothing, the gap
+measured as the back beam's displacement toward the support, and never pulls it. The
+back beam meets the support's end as an edge: its force concentrates at s = l_s, and its
+penetration there falls more slowly with k than a distributed contact's (about k^-3/4 for
+a beam on an elastic bed instead of 1/k), so the support has its own penetration limit.
 
 All contact enters the rod equations as a distributed load n' = -f, m' = -p' x n - l, so
 it is solved inside the equilibrium, and is smooth in every state and design value.
@@ -33,7 +36,7 @@ from ._objects import kind_by_key, param_size
 from ._types import as_float
 
 N_SEGMENT = 4  # per-segment contact columns: object flag, support flag, h at start, h at end
-N_GLOBAL = 11  # k, delta, mu, eps, slip (2), support point (2), support normal (2), unused
+N_GLOBAL = 12  # k, delta, mu, eps, slip (2), support point (2), support normal (2), k_s, delta_s
 
 
 class Contact(eqx.Module):
@@ -44,6 +47,11 @@ class Contact(eqx.Module):
     max_penetration: the allowed penetration as a fraction of the front beam's thickness
         (default 0.02). The smoothing is delta = max_penetration * thickness / 2, and
         `grasp` stiffens k until the largest penetration stays below the limit.
+    support_stiffness: the support's k (N/mm^2). None: the same as `stiffness`.
+    max_support_penetration: the support's allowed penetration as a fraction of the back
+        beam's thickness. None: the same fraction as `max_penetration`. Its smoothing is
+        max_support_penetration * thickness / 2, and `grasp` stiffens the support until
+        the back beam's penetration into it stays below the limit.
     friction: Coulomb coefficient mu (0: frictionless).
     friction_regularisation: eps of tanh((w . t) / eps) (dimensionless; the slip
         direction w and the tangent t are unit vectors).
@@ -67,6 +75,12 @@ class Contact(eqx.Module):
         converter=lambda x: None if x is None else as_float(x), default=None
     )
     max_penetration: jax.Array = eqx.field(converter=as_float, default=0.02)
+    support_stiffness: jax.Array | None = eqx.field(
+        converter=lambda x: None if x is None else as_float(x), default=None
+    )
+    max_support_penetration: jax.Array | None = eqx.field(
+        converter=lambda x: None if x is None else as_float(x), default=None
+    )
     friction: jax.Array = eqx.field(converter=as_float, default=0.0)
     friction_regularisation: jax.Array = eqx.field(converter=as_float, default=0.05)
     slip_direction: jax.Array = eqx.field(converter=as_float, default=(0.0, 0.0))
@@ -185,10 +199,33 @@ def smoothing(finger):
     return finger.contact.max_penetration * finger.front.thickness / 2.0
 
 
+def stiffness(finger):
+    """The objects' penalty stiffness k (N/mm^2)."""
+    c = finger.contact
+    return default_stiffness(finger) if c.stiffness is None else c.stiffness
+
+
+def support_stiffness(finger):
+    """The support's penalty stiffness (N/mm^2)."""
+    c = finger.contact
+    return stiffness(finger) if c.support_stiffness is None else c.support_stiffness
+
+
+def support_penetration_limit(finger):
+    """The support's largest allowed penetration (mm)."""
+    c = finger.contact
+    frac = c.max_penetration if c.max_support_penetration is None else c.max_support_penetration
+    return frac * finger.back.thickness
+
+
+def support_smoothing(finger):
+    return support_penetration_limit(finger) / 2.0
+
+
 def global_params(finger, geo):
     """The contact parameter vector shared by every segment."""
     c = finger.contact
-    k = default_stiffness(finger) if c.stiffness is None else c.stiffness
+    k = stiffness(finger)
     # The support line: through the back beam's base, along its undeformed tangent, with
     # the normal pointing forward (toward the front beam's side).
     th = geo.theta[1]
@@ -204,7 +241,8 @@ def global_params(finger, geo):
             *c.slip_direction,
             *point,
             *normal,
-            jnp.zeros(()),
+            support_stiffness(finger),
+            support_smoothing(finger),
         ]
     )
     return jnp.concatenate([head] + objects)
@@ -246,7 +284,7 @@ def contact_load(spec: ContactSpec, q, x, z, tx, tz, tau):
     if spec.support:
         s_nx, s_nz = g[8], g[9]
         gap = (x - g[6]) * s_nx + (z - g[7]) * s_nz
-        qs = sup_flag * penalty(gap, k, delta)
+        qs = sup_flag * penalty(gap, g[10], g[11])
         fx, fz = fx + qs * s_nx, fz + qs * s_nz
     return fx, fz, ly
 
@@ -264,9 +302,3 @@ def beam_gaps(spec: ContactSpec, q, p, tau):
     if spec.support:
         gaps.append(jnp.where(sup_flag > 0, jnp.dot(p - g[6:8], g[8:10]), big))
     return jnp.stack(gaps)
-
-
-def pressure(spec: ContactSpec, q, p, tau):
-    """Normal contact force per length from every object (N/mm) and from the support."""
-    g = q[N_SEGMENT:]
-    return jnp.stack([penalty(x, g[0], g[1]) for x in beam_gaps(spec, q, p, tau)])

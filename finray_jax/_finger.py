@@ -642,6 +642,18 @@ def _validate_contact(finger: Finger) -> None:
             f"contact.max_penetration must lie in (0, 0.5) (a fraction of the "
             f"front beam's thickness), got {mp}"
         )
+    if c.support_stiffness is not None:
+        _positive(
+            "contact.support_stiffness",
+            _shaped("contact.support_stiffness", c.support_stiffness, ()),
+        )
+    if c.max_support_penetration is not None:
+        ms = float(_finite("contact.max_support_penetration", c.max_support_penetration))
+        if not 0.0 < ms < 0.5:
+            raise FingerError(
+                f"contact.max_support_penetration must lie in (0, 0.5) (a fraction of the "
+                f"back beam's thickness), got {ms}"
+            )
     mu = float(_finite("contact.friction", c.friction))
     if mu < 0:
         raise FingerError(f"contact.friction must be non-negative, got {mu}")

@@ -17,7 +17,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._contact import check_friction, default_stiffness, penalty, smoothing, with_friction
+from ._contact import (
+    check_friction,
+    penalty,
+    smoothing,
+    stiffness,
+    support_penetration_limit,
+    support_smoothing,
+    support_stiffness,
+    with_friction,
+)
 from ._finger import BACK, FRONT, Finger, FingerError
 from ._objects import HalfPlane, _safe_norm
 from ._rod import Integrator
@@ -26,6 +35,7 @@ from ._solve import SolverOptions, _direct_core, prepare, resolve_mode, undeform
 from ._types import as_float
 
 GRASP_STEPS = 16  # default integration steps per segment for contact problems
+MAX_STIFFENING = 16.0  # the largest factor on a penalty stiffness in one round
 
 
 class ContactResult(eqx.Module):
@@ -37,6 +47,7 @@ class ContactResult(eqx.Module):
         points of the front and back beams' solutions (`Solution.front.s`, `.back.s`).
     contact_length: arc length in contact (penetration > 0), both beams (mm).
     max_penetration: largest penetration of a beam's surface into an object (mm).
+    support_penetration: largest penetration of the back beam into the support (mm).
     support_force: total force of the adaptor's support on the back beam (N).
     crossbeam_force: mean force the crossbeams apply to the front beam (x, y, z) (N): the
         paper's Fig. 4 metric.
@@ -51,6 +62,7 @@ class ContactResult(eqx.Module):
     pressure_back: jax.Array
     contact_length: jax.Array
     max_penetration: jax.Array
+    support_penetration: jax.Array
     support_force: jax.Array
     crossbeam_force: jax.Array
     actuator_force: jax.Array
@@ -73,14 +85,15 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
 
     geo = geometry(finger)
     c = finger.contact
-    k = default_stiffness(finger) if c.stiffness is None else c.stiffness
-    delta = smoothing(finger)
+    k, delta = stiffness(finger), smoothing(finger)
+    k_s, delta_s = support_stiffness(finger), support_smoothing(finger)
     clamp = (finger.adaptor.front_clamp_length, finger.adaptor.back_clamp_length)
     force = jnp.zeros(3)
     support = jnp.zeros(3)
     normal = jnp.zeros(())
     length = jnp.zeros(())
     pen = jnp.zeros(())
+    sup_pen = jnp.zeros(())
     pressures = []
     w = jnp.insert(as_float(direction), 1, 0.0)
     for beam, bs in ((FRONT, sol.front), (BACK, sol.back)):
@@ -104,12 +117,18 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
             pen = jnp.maximum(pen, jnp.max(jnp.where(free, -gap, 0.0)))
             length = length + _length_inside(jnp.where(free, gap, 1.0), bs.s)
         f_sup = jnp.zeros_like(f_obj)
+        backed = jnp.zeros(bs.s.shape[0] // (sol.steps + 2), bool)  # segments the support backs
         if beam == BACK and finger.adaptor.support_length is not None:
             th = geo.theta[BACK]
             nrm = -jnp.stack([jnp.cos(th), -jnp.sin(th)])
             gap = (p - geo.base[BACK, ::2]) @ nrm
-            on = free & (bs.s < finger.adaptor.support_length)
-            f_sup = jnp.where(on, penalty(gap, k, delta), 0.0)[:, None] * nrm[None]
+            # The support acts on whole segments (those that end at or before l_s), so its
+            # force at s = l_s, where a stiff penalty concentrates it, belongs to it too.
+            ends = _blocks(bs.s, sol.steps)[:, -1]
+            backed = ends <= finger.adaptor.support_length * (1.0 + 1e-12)
+            on = free & jnp.repeat(backed, sol.steps + 2)
+            f_sup = jnp.where(on, penalty(gap, k_s, delta_s), 0.0)[:, None] * nrm[None]
+            sup_pen = jnp.max(jnp.where(on, -gap, 0.0))
         # Per segment: sampled integrals, and the exact total from the jump of n.
         s_b = _blocks(bs.s, sol.steps)
         n_b = _blocks(bs.force[:, ::2], sol.steps)
@@ -125,10 +144,15 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         has_s = jnp.sum(ss * ss, axis=1) > tiny
         some = size > tiny
         scale = jnp.where(some, jnp.sum(exact * sampled, axis=1) / jnp.where(some, size, 1.0), 1.0)
-        # all of the segment's contact force goes to what touches it; if both do, split
-        # by the sampled shares
+        # All of the segment's contact force goes to what touches it; if both do, split
+        # by the sampled shares. A contact too concentrated for the solution's points
+        # (a stiff support's edge force acts between them) is the support's on the
+        # segments it backs where no object is seen.
+        to_objects = ~has_s & (has_o | ~backed)
         obj_part = jnp.where(
-            (~has_s)[:, None], exact, jnp.where(has_o[:, None], scale[:, None] * so, 0.0)
+            to_objects[:, None],
+            exact,
+            jnp.where((has_o & has_s)[:, None], scale[:, None] * so, 0.0),
         )
         force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
         support = support + jnp.insert(jnp.sum(exact - obj_part, axis=0), 1, 0.0)
@@ -144,6 +168,7 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         pressure_back=pressures[1],
         contact_length=length,
         max_penetration=pen,
+        support_penetration=sup_pen,
         support_force=support,
         crossbeam_force=jnp.mean(cb, axis=0) if cb.shape[0] else jnp.zeros(3),
         actuator_force=jnp.dot(reactions, w),
@@ -185,8 +210,9 @@ class GraspSolution(eqx.Module):
     """A grasp: the finger's equilibrium at a closing displacement, and its contact.
 
     closing: the closing displacement d (mm); finger: the finger with its objects where
-    they are relative to it at that closing; stiffness: the penalty stiffness used (after
-    any automatic stiffening); holding_factor: 2 for a symmetric two-finger grasp, else 1.
+    they are relative to it at that closing; stiffness, support_stiffness: the objects'
+    and the support's penalty stiffness used (after any automatic stiffening; the finger
+    holds both); holding_factor: 2 for a symmetric two-finger grasp, else 1.
     """
 
     solution: Solution
@@ -194,6 +220,7 @@ class GraspSolution(eqx.Module):
     finger: Finger
     closing: jax.Array
     stiffness: jax.Array
+    support_stiffness: jax.Array
     steps: int = eqx.field(static=True)
     holding_factor: int = eqx.field(static=True, default=2)
     topology: object = eqx.field(static=True, default=None)
@@ -207,6 +234,46 @@ class GraspSolution(eqx.Module):
     @property
     def converged(self) -> bool:
         return bool(self.solution.result == RESULTS.successful)
+
+    def penetration_warnings(self) -> list[str]:
+        """A line for each penetration limit the grasp exceeds (none when both hold).
+
+        `grasp` stiffens a penalty until its limit holds, unless a stiffer penalty stops
+        converging: a contact pressed along a long stretch of a shooting segment makes
+        the segment's solution grow like exp(L (k / 4 EI)^(1/4)), and past a point Newton
+        cannot follow it. A shorter `Contact.segment_length` moves that point;
+        `rigid_contact_estimate` tells how far the answer is from rigid contact."""
+        c, f = self.contact, self.finger
+        out = []
+        checks = [
+            (
+                "an object",
+                c.max_penetration,
+                f.contact.max_penetration * f.front.thickness,
+                "contact.max_penetration",
+                self.stiffness,
+            ),
+        ]
+        if f.adaptor.support_length is not None:
+            checks.append(
+                (
+                    "the support",
+                    c.support_penetration,
+                    support_penetration_limit(f),
+                    "contact.max_support_penetration",
+                    self.support_stiffness,
+                )
+            )
+        for what, pen, limit, key, k in checks:
+            if float(pen) > float(limit) * (1.0 + 1e-9):
+                out.append(
+                    f"the penetration into {what}, {float(pen):.3g} mm, exceeds its limit "
+                    f"{float(limit):.3g} mm ({key}) at penalty stiffness {float(k):.4g} "
+                    f"N/mm^2: a stiffer one did not converge on "
+                    f"{f.contact.segment_length:g} mm shooting segments "
+                    "(contact.segment_length)"
+                )
+        return out
 
 
 def _moved(finger: Finger, displacement) -> Finger:
@@ -225,8 +292,12 @@ def _with_contact(finger: Finger, **values) -> Finger:
     return eqx.tree_at(lambda f: f.contact, finger, c)
 
 
-def _with_stiffness(finger: Finger, k) -> Finger:
-    return _with_contact(finger, stiffness=k)
+def _with_stiffness(finger: Finger, k, k_support=None) -> Finger:
+    """The finger with the objects' penalty stiffness k and the support's (default: the
+    one it has)."""
+    if k_support is None:
+        return _with_contact(finger, stiffness=k)
+    return _with_contact(finger, stiffness=k, support_stiffness=k_support)
 
 
 def unit_direction(direction, name):
@@ -399,8 +470,10 @@ def grasp(
         or actuator_force: the force (N) the actuator applies along `direction` (the
         closing displacement is then found on the closing path, by regula falsi on the
         step that passes the force).
-    stiffen: when the largest penetration exceeds `Contact.max_penetration` of the front
-        beam's thickness, raise the penalty stiffness and solve again (warm started).
+    stiffen: when the largest penetration into an object exceeds `Contact.max_penetration`
+        of the front beam's thickness, or the back beam's into the support exceeds its
+        limit (`Contact.max_support_penetration`), raise that contact's penalty stiffness
+        and solve again (warm started).
     topology: the segment table of an earlier grasp of the same finger (its `.topology`):
         the beams are cut at the same points whatever the design values, so the answer is
         on that grasp's discretisation and nothing recompiles. None: cut for this finger.
@@ -419,16 +492,19 @@ def grasp(
             raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
     # (check_objects validated the finger)
     stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
-    k = float(
-        default_stiffness(finger) if finger.contact.stiffness is None else finger.contact.stiffness
-    )
-    finger = _with_stiffness(finger, k)
+    k, k_s = float(stiffness(finger)), float(support_stiffness(finger))
+    finger = _with_stiffness(finger, k, k_s)
 
     def at(t):
         return _moved(finger, -t * w)
 
     cap = _closing_step_cap(finger)
     limit = float(finger.contact.max_penetration * finger.front.thickness)
+    limit_s = float(support_penetration_limit(finger))
+    onsets = (float(0.5 * smoothing(finger)), float(0.5 * support_smoothing(finger)))
+    # penetration - onset ~ k^-order: 1 for a distributed contact, about 3/4 for the
+    # support's edge (re-estimated from every stiffening)
+    orders = [1.0, 0.75]
     rounds, start = 0, None
     while True:
         if closing is not None:
@@ -439,18 +515,35 @@ def grasp(
             sol, _ = stepper.solve(at(0.0), None)
         res = contact_result(at(t), sol, w)
         stiffened = False
-        while ok and stiffen and float(res.max_penetration) > limit and rounds < 6:
-            # penetration = delta / 2 + q / k: scale k so that q / k fits in what is left,
-            # stepping log k from the old to the new stiffness (warm started).
-            onset = float(0.5 * smoothing(finger))
-            excess = (float(res.max_penetration) - onset) / max(limit - onset, 1e-12)
-            k_new = k * 1.3 * max(excess, 1.0)
-            stiffer = lambda u, k0=k, k1=k_new, t=t: _with_stiffness(at(t), k0 * (k1 / k0) ** u)
-            _, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
+        pens = (float(res.max_penetration), float(res.support_penetration))
+        while ok and stiffen and (pens[0] > limit or pens[1] > limit_s) and rounds < 8:
+            # penetration = onset + c k^-order: scale each k so that the part above the
+            # onset fits in what is left, stepping log k from the old to the new
+            # stiffnesses (warm started).
+            old = (k, k_s)
+            new = tuple(
+                _stiffer(kk, p, lim, onset, order)
+                for kk, p, lim, onset, order in zip(old, pens, (limit, limit_s), onsets, orders)
+            )
+            stiffer = lambda u, k0=old, k1=new, t=t: _with_stiffness(
+                at(t), *(a * (b / a) ** u for a, b in zip(k0, k1))
+            )
+            u, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
+            if not ok and u > 0:  # part of the way: go on from there
+                new, ok = tuple(a * (b / a) ** u for a, b in zip(old, new)), True
+            elif not ok:  # not a step: keep the last equilibrium (`penetration_warnings`)
+                ok = True
+                break
             if ok:
-                k = k_new
-                finger = _with_stiffness(finger, k)  # (at() closes over the new finger)
+                k, k_s = new
+                finger = _with_stiffness(finger, k, k_s)  # (at() closes over the new finger)
                 res = contact_result(at(t), sol, w)
+                seen = (float(res.max_penetration), float(res.support_penetration))
+                for i in range(2):
+                    orders[i] = _observed_order(
+                        old[i], new[i], pens[i], seen[i], onsets[i], orders[i]
+                    )
+                pens = seen
                 stiffened = True
             rounds += 1
         # A stiffer contact changes the actuator force at that closing: find the closing
@@ -467,12 +560,30 @@ def grasp(
         at(t),
         jnp.asarray(t),
         jnp.asarray(k),
+        jnp.asarray(k_s),
         stepper.calls,
         2 if symmetric else 1,
         stepper.topo,
         tuple(float(x) for x in w),
         integrator,
     )
+
+
+def _stiffer(k, pen, limit, onset, order):
+    """The stiffness that brings a penetration `pen` at stiffness k below `limit`."""
+    if pen <= limit:
+        return k
+    excess = (pen - onset) / max(limit - onset, 1e-12)
+    return k * min((1.3 * excess) ** (1.0 / order), MAX_STIFFENING)
+
+
+def _observed_order(k0, k1, pen0, pen1, onset, order):
+    """The exponent of penetration - onset ~ k^-order seen between two stiffnesses (the
+    previous estimate where the step says nothing)."""
+    e0, e1 = pen0 - onset, pen1 - onset
+    if k1 <= k0 or e0 <= 0 or e1 <= 0 or e1 >= e0:
+        return order
+    return float(np.clip(np.log(e0 / e1) / np.log(k1 / k0), 0.25, 1.0))
 
 
 def regrasp(g: GraspSolution, finger: Finger, closing=None, *, options=SolverOptions()):
@@ -490,7 +601,7 @@ def regrasp(g: GraspSolution, finger: Finger, closing=None, *, options=SolverOpt
 def _resolve_near(g: GraspSolution, moved: Finger, integrator, options):
     """The equilibrium of `moved` (objects where they are at the closing) with g's penalty
     stiffness, segment cuts and start: (Solution, ContactResult)."""
-    moved = _with_stiffness(moved, g.stiffness)
+    moved = _with_stiffness(moved, g.stiffness, g.support_stiffness)
     check_friction(g.topology.contact, moved)
     # ref_sign 0 (the sign at g's equilibrium), passed as the stepper passes it: an f64
     # array, so this call reuses the grasp's compiled program

@@ -64,7 +64,7 @@ class _Anchors(eqx.Module):
     """Per object (leading axis): the warm start of Newton and the grasp's state."""
 
     unknowns: jax.Array
-    stiffness: jax.Array
+    stiffness: jax.Array  # (objects, 2): the objects' and the support's k
     closing: jax.Array
     pull: jax.Array  # the peak pull t* (holding force; 0 for the contact force)
 
@@ -87,7 +87,7 @@ def _solve_one(static: _Static, base: Finger, x, unknowns, stiffness, closing, p
     pressures front/back)."""
     finger = _set_design(base, _values(static, x))
     w, e = jnp.asarray(static.direction), jnp.asarray(static.pull)
-    moved = _with_stiffness(_moved(finger, -closing * w + pull * e), stiffness)
+    moved = _with_stiffness(_moved(finger, -closing * w + pull * e), stiffness[0], stiffness[1])
     sol, _, _ = _direct_core(static.topology, static.integrator, static.options, moved, unknowns)
     res = contact_result(moved, sol, w)
     if static.objective == "contact_force":

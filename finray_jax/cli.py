@@ -280,6 +280,12 @@ def _parser() -> argparse.ArgumentParser:
         metavar="MU",
         help="friction coefficient for the release trace (default: [contact])",
     )
+    gr.add_argument(
+        "--rigid-estimate",
+        action="store_true",
+        help="also re-solve with the penalty stiffnesses x4 and x16 and extrapolate the "
+        "contact outputs and the tip to rigid contact (how far the penalty answer is from it)",
+    )
     _add_check_resolution(gr, "the contact normal force")
 
     cmp_ = sub.add_parser(
@@ -860,6 +866,7 @@ def _grasp_dict(g, release=None) -> dict:
         "status": g.status,
         "closing": float(g.closing),
         "penalty_stiffness": float(g.stiffness),
+        "support_penalty_stiffness": float(g.support_stiffness),
         "max_residual": float(g.solution.max_residual),
         "contact": {
             "force": np.asarray(c.force).tolist(),
@@ -867,6 +874,7 @@ def _grasp_dict(g, release=None) -> dict:
             "contact_length": float(c.contact_length),
             "max_penetration": float(c.max_penetration),
             "support_force": np.asarray(c.support_force).tolist(),
+            "support_penetration": float(c.support_penetration),
             "crossbeam_force_mean": np.asarray(c.crossbeam_force).tolist(),
             "actuator_force": float(c.actuator_force),
             "pressure_front": {
@@ -901,20 +909,36 @@ def _grasp_dict(g, release=None) -> dict:
     return out
 
 
+def _support_lines(g) -> list[str]:
+    if g.finger.adaptor.support_length is None:
+        return []
+    c = g.contact
+    return [
+        f"  support force     x {_f(c.support_force[0])}, z {_f(c.support_force[2])} N, "
+        f"max penetration {_f(c.support_penetration)} mm "
+        f"(penalty stiffness {float(g.support_stiffness):.4g} N/mm^2)"
+    ]
+
+
 def _grasp_lines(g, name="") -> list[str]:
     c = g.contact
     head = f"{name}: " if name else ""
-    return [
-        f"{head}{g.status} at closing {float(g.closing):.4g} mm "
-        f"(penalty stiffness {float(g.stiffness):.4g} N/mm^2)",
-        f"  contact force     {_f(c.normal_force)} N normal resultant; total force x "
-        f"{_f(c.force[0])}, z {_f(c.force[2])} N",
-        f"  contact length    {_f(c.contact_length)} mm, max penetration "
-        f"{_f(c.max_penetration)} mm",
-        f"  crossbeam force   x {_f(c.crossbeam_force[0])}, z {_f(c.crossbeam_force[2])} N "
-        "(mean on the front beam)",
-        f"  actuator force    {_f(c.actuator_force)} N",
-    ] + ([f"  {fr.RESULTS[g.solution.result]}"] if g.status == "failed" else [])
+    return (
+        [
+            f"{head}{g.status} at closing {float(g.closing):.4g} mm "
+            f"(penalty stiffness {float(g.stiffness):.4g} N/mm^2)",
+            f"  contact force     {_f(c.normal_force)} N normal resultant; total force x "
+            f"{_f(c.force[0])}, z {_f(c.force[2])} N",
+            f"  contact length    {_f(c.contact_length)} mm, max penetration "
+            f"{_f(c.max_penetration)} mm",
+            f"  crossbeam force   x {_f(c.crossbeam_force[0])}, z {_f(c.crossbeam_force[2])} N "
+            "(mean on the front beam)",
+            f"  actuator force    {_f(c.actuator_force)} N",
+        ]
+        + _support_lines(g)
+        + [f"  warning: {w}" for w in g.penetration_warnings()]
+        + ([f"  {fr.RESULTS[g.solution.result]}"] if g.status == "failed" else [])
+    )
 
 
 def _cmd_grasp(args) -> int:
@@ -952,12 +976,35 @@ def _cmd_grasp(args) -> int:
             f"  holding force     {_f(trace.peak)} N at pull {_f(trace.peak_pull)} mm "
             f"({trace.message})"
         )
+    rigid = None
+    if args.rigid_estimate and g.converged:
+        _progress("rigid-contact estimate: the grasp at 4 and 16 x its penalty stiffnesses")
+        try:
+            rigid = fr.rigid_contact_estimate(g)
+        except RuntimeError as error:
+            print(f"  rigid-contact estimate: {error}")
+        else:
+            print("  rigid-contact estimate (extrapolated in the penalty stiffness):")
+            print("\n".join("    " + line for line in rigid.lines()))
     check = None
     if rtol is not None and g.converged:
         run = lambda: fr.check_grasp_resolution(g, rtol=rtol)
         check = _report_resolution(g.integrator.steps, run)
     if args.out:
         out = _grasp_dict(g, trace)
+        if rigid is not None:
+            out["rigid_estimate"] = {
+                key: getattr(rigid, key)
+                for key in (
+                    "factors",
+                    "stiffness",
+                    "support_stiffness",
+                    "values",
+                    "order",
+                    "rigid",
+                    "distance",
+                )
+            }
         if check is not None:
             out["resolution"] = check.to_dict()
         fio.write_json(args.out, out)

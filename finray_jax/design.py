@@ -42,6 +42,8 @@ Outputs of a grasp (`GRASP_OUTPUTS`, name -> fn(GraspSolution) -> scalar):
     contact.force.x, .z           total contact force on the finger (N)
     contact.length                arc length in contact (mm)
     contact.max_penetration       largest penetration into an object (mm)
+    contact.support_force.x, .z   force of the adaptor's support on the back beam (N)
+    contact.support_penetration   largest penetration of the back beam into the support (mm)
     contact.crossbeam_force.x, .z mean crossbeam force on the front beam (N; Fig. 4)
     actuator_force                force of the actuator along the closing direction (N)
     closing                       the closing displacement (mm)
@@ -586,6 +588,9 @@ GRASP_OUTPUTS: dict[str, Callable] = {
     "contact.force.z": lambda g: g.contact.force[2],
     "contact.length": lambda g: g.contact.contact_length,
     "contact.max_penetration": lambda g: g.contact.max_penetration,
+    "contact.support_force.x": lambda g: g.contact.support_force[0],
+    "contact.support_force.z": lambda g: g.contact.support_force[2],
+    "contact.support_penetration": lambda g: g.contact.support_penetration,
     "contact.crossbeam_force.x": lambda g: g.contact.crossbeam_force[0],
     "contact.crossbeam_force.z": lambda g: g.contact.crossbeam_force[2],
     "actuator_force": lambda g: g.contact.actuator_force,

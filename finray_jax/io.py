@@ -726,6 +726,8 @@ def _contact(value, r: _Reader) -> Contact:
     keys = (
         "stiffness",
         "max_penetration",
+        "support_stiffness",
+        "max_support_penetration",
         "friction",
         "friction_regularisation",
         "segment_length",
@@ -1037,8 +1039,12 @@ def _objects_toml(finger: Finger) -> list[str]:
     out += ["[contact]"]
     if c.stiffness is not None:
         out.append(f"stiffness = {_tf(c.stiffness)}")
+    out.append(f"max_penetration = {_tf(c.max_penetration)}")
+    if c.support_stiffness is not None:
+        out.append(f"support_stiffness = {_tf(c.support_stiffness)}")
+    if c.max_support_penetration is not None:
+        out.append(f"max_support_penetration = {_tf(c.max_support_penetration)}")
     out += [
-        f"max_penetration = {_tf(c.max_penetration)}",
         f"friction = {_tf(c.friction)}",
         f"friction_regularisation = {_tf(c.friction_regularisation)}",
         f"segment_length = {_tf(c.segment_length)}",

@@ -54,6 +54,7 @@ from ._grasp import (
     _moved,
     _Stepper,
     _with_contact,
+    _with_stiffness,
     grasp,
     release_force,
 )
@@ -180,7 +181,7 @@ def _setup(problem: OptimizeProblem, say=lambda m: None) -> _Setup:
         bases = [_pull_finger(problem, f) for f in fingers]
     anchors = _Anchors(
         unknowns=jnp.stack(unknowns),
-        stiffness=jnp.stack([jnp.asarray(g.stiffness, jnp.float64) for g in gs]),
+        stiffness=jnp.asarray([[float(g.stiffness), float(g.support_stiffness)] for g in gs]),
         closing=jnp.asarray([float(g.closing) for g in gs], jnp.float64),
         pull=jnp.asarray(pulls, jnp.float64),
     )
@@ -278,7 +279,7 @@ def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: _Anchors, say
     for i, base in enumerate(fingers):
         say(f"re-grasping object {i} (the warm-started Newton solve did not converge)")
         f = _set_design(base, dict(zip(problem.names, np.asarray(x).tolist())))
-        f = _with_contact(f, stiffness=anchors.stiffness[i])
+        f = _with_stiffness(f, *anchors.stiffness[i])
         g = grasp(
             f,
             float(anchors.closing[i]),
@@ -695,7 +696,8 @@ def _best_path(best_path: str, i: int) -> str:
 def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, anchors):
     """The best design as finger files, one per object: each holds that object (placed as
     the optimiser placed it) and, for the holding force, the release's friction."""
-    k = ", ".join(f"{float(v)!r}" for v in np.asarray(anchors.stiffness))
+    k = ", ".join(f"{float(v)!r}" for v in np.asarray(anchors.stiffness)[:, 0])
+    k_s = ", ".join(f"{float(v)!r}" for v in np.asarray(anchors.stiffness)[:, 1])
     n_obj = 1 if problem.diameters is None else len(problem.diameters)
     designed = problem.designed(x)
     if problem.objective == "holding_force":
@@ -721,9 +723,11 @@ def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, a
             f"({problem.aggregate} over {n_obj} object(s)).",
             "# " + ", ".join(f"{n} = {v!r}" for n, v in zip(problem.names, np.asarray(x).tolist())),
             f"# That figure holds the contact penalty stiffness of the initial design fixed (k = "
-            f"{k} N/mm^2, per object);",
-            "# `finray grasp` chooses k for this design anew, so its force can differ slightly",
-            "# ([contact] stiffness = k reproduces the figure).",
+            f"{k} N/mm^2, per object;",
+            f"# the support's {k_s} N/mm^2); `finray grasp` chooses them for this design anew, "
+            "so its force can",
+            "# differ slightly ([contact] stiffness = k and support_stiffness reproduce the "
+            "figure).",
         ]
         if others:
             head.append(f"# The other objects' files: {', '.join(others)}.")
@@ -765,7 +769,7 @@ def _final_grasps(problem: OptimizeProblem, setup: _Setup, x):
     out = []
     for i, base in enumerate(problem.object_fingers()):
         f = _set_design(base, dict(zip(problem.names, np.asarray(x, float).tolist())))
-        f = _with_contact(f, stiffness=setup.anchors.stiffness[i])
+        f = _with_stiffness(f, *setup.anchors.stiffness[i])
         out.append(grasp(f, problem.closing, direction=problem.direction, stiffen=False))
     return out
 

@@ -5,6 +5,7 @@ law, and the contact force with its derivative in one design value (forward mode
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import pathlib
 
@@ -37,11 +38,15 @@ def load_finger1(count: int | None = None) -> fr.Finger:
     return finger
 
 
-def with_stiffness(finger: fr.Finger, k: float) -> fr.Finger:
-    """The finger with a fixed contact penalty stiffness k (N/mm^2)."""
-    return eqx.tree_at(
-        lambda f: f.contact.stiffness, finger, jnp.asarray(float(k)), is_leaf=lambda x: x is None
+def with_stiffness(finger: fr.Finger, k: float, k_support: float | None = None) -> fr.Finger:
+    """The finger with a fixed contact penalty stiffness k (N/mm^2), and the support's
+    (default: the same k)."""
+    contact = dataclasses.replace(
+        finger.contact,
+        stiffness=jnp.asarray(float(k)),
+        support_stiffness=None if k_support is None else jnp.asarray(float(k_support)),
     )
+    return dataclasses.replace(finger, contact=contact)
 
 
 @eqx.filter_jit
@@ -84,9 +89,9 @@ class ContactForce:
         template = self.templates.setdefault(g.topology, g)
         # same static fields as the template: the compiled regrasp is reused
         return eqx.tree_at(
-            lambda r: (r.solution, r.closing, r.stiffness),
+            lambda r: (r.solution, r.closing, r.stiffness, r.support_stiffness),
             template,
-            (g.solution, g.closing, g.stiffness),
+            (g.solution, g.closing, g.stiffness, g.support_stiffness),
         )
 
     def __call__(self, base: fr.Finger, x: float, ref=None):

@@ -93,14 +93,15 @@ def main(argv=None) -> int:
 
     def base_for(d, k=None):
         b = studies.with_adaptor(studies.with_object(finger, d), adaptor)
-        return b if k is None else cm.with_stiffness(b, k)
+        return b if k is None else cm.with_stiffness(b, *k)
 
     # One contact law for every design: the stiffness grasp() picks for the first object
     # at l_c = 20 mm, times 1.5 (headroom for the stiffer designs).
     g = fr.grasp(base_for(diameters[0]), args.closing)
-    k = 1.5 * float(g.stiffness)
+    k = (1.5 * float(g.stiffness), 1.5 * float(g.support_stiffness))
     print(
-        f"contact penalty stiffness fixed at {k:.1f} N/mm^2; closing {args.closing} mm, "
+        f"contact penalty stiffness fixed at {k[0]:.1f} N/mm^2 (the support's {k[1]:.1f}); "
+        f"closing {args.closing} mm, "
         f"support to l_s = {ls} mm, l_c in [{lo}, {hi}] mm"
     )
     ev = cm.ContactForce(set_clamp, args.closing)
@@ -162,7 +163,8 @@ def main(argv=None) -> int:
             closing_mm=args.closing,
             support_length_mm=ls,
             clamp_bounds_mm=[lo, hi],
-            penalty_stiffness=k,
+            penalty_stiffness=k[0],
+            support_penalty_stiffness=k[1],
             quick=args.quick,
             scan_clamp_lengths_mm=scan.tolist(),
             diameters=record,

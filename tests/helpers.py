@@ -169,9 +169,10 @@ def without_jacobian(sol):
     return eqx.tree_at(lambda s: s.jacobian, sol, None, is_leaf=lambda x: x is None)
 
 
-def contact_wrench(finger, sol, load_factor=1.0):
+def contact_wrench(finger, sol, load_factor=1.0, beams=(0, 1)):
     """Total force and moment about the origin that the objects and the support apply to
-    the finger's main beams, from the solution alone (not from the contact law).
+    the finger's main beams (those in `beams`: 0 front, 1 back), from the solution alone
+    (not from the contact law).
 
     Within a segment only contact and distributed loads act (point loads, crossbeams and
     the tip junction act at cuts), and n' = -f, (m + p x n)' = -(l + p x f) there. So on
@@ -183,6 +184,8 @@ def contact_wrench(finger, sol, load_factor=1.0):
 
     force, moment = np.zeros(3), np.zeros(3)
     for b, beam in ((0, sol.front), (1, sol.back)):
+        if b not in beams:
+            continue
         rows = sol.steps + 2
         p = np.asarray(beam.position).reshape(-1, rows, 3)
         n = np.asarray(beam.force).reshape(-1, rows, 3)

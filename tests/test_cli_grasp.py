@@ -92,6 +92,29 @@ def test_grasp_check_resolution(tmp_path):
 
 
 @pytest.mark.slow
+def test_grasp_rigid_estimate(tmp_path):
+    """The modified adaptor's grasp with --rigid-estimate: the support's force and
+    penetration within its limit on the first screen, the table of the grasp at 1, 4 and
+    16 times its stiffnesses, and the same in the JSON (NaN orders as null)."""
+    out = tmp_path / "g.json"
+    path = str(ROOT / "examples" / "grasp_finger1_modified.toml")
+    code, stdout, err = run(["grasp", path, "--rigid-estimate", "--out", str(out)])
+    assert code == 0, err
+    assert "support force" in stdout and "rigid-contact estimate" in stdout
+    assert "warning" not in stdout
+    d = json.loads(out.read_text())
+    r = d["rigid_estimate"]
+    assert r["factors"] == [1.0, 4.0, 16.0]
+    assert r["stiffness"][0] == d["penalty_stiffness"]
+    assert r["support_stiffness"][0] == d["support_penalty_stiffness"]
+    assert r["values"]["normal_force"][0] == pytest.approx(d["contact"]["normal_force"], rel=1e-12)
+    assert 0 < d["contact"]["support_penetration"] <= 0.02 * 3.0
+    for name, v in r["values"].items():
+        assert len(v) == 3 and r["rigid"][name] is not None
+        assert r["order"][name] is None or 0.2 <= r["order"][name]
+
+
+@pytest.mark.slow
 def test_compare_and_clamp_study(tmp_path):
     code, stdout, err = run(["compare", "--out", str(tmp_path)])
     assert code == 0, err

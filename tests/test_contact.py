@@ -735,7 +735,7 @@ def test_banded_newton_step_on_the_contact_jacobian(grasps):
     from test_banded import check_banded_step
 
     g = grasps[1]
-    check_banded_step(g.finger, g.topology)
+    check_banded_step(g.finger, g.topology, g.solution.unknowns)
 
 
 def test_chord_steps_with_contact_reach_newtons_root(finger1, grasps):

@@ -35,8 +35,9 @@ that strain. With nearly shear-rigid sections (shear coefficient 100) both agree
 the difference is the beam theory's finite-strain shear, not the contact, the support or
 the adaptor. The modified grasps depend strongly on the penalty: the rigid-contact limit (stored
 penalty study) lies 2-15 % from the outputs at finray_jax's k (0.5-1.3 % for the
-original adaptor), because `grasp` stiffens k for the objects' penetration only, and the
-support's reaches 0.19 mm at 4 mm closing.
+original adaptor), because at the one k both sides use for the cylinder and the support
+the back beam's penetration into the support reaches 0.19 mm at 4 mm closing. (A default
+grasp does not allow that: it stiffens the support to its own limit, test_grasp_forces.)
 
 Measured (finray_jax vs the finest reference mesh; rel = (ours - theirs) / |theirs|, or
 / scale where marked *; the pinned front base's moment is 0 on both sides):
