@@ -354,8 +354,9 @@ class _Stepper:
 
     def solve(self, finger, init):
         self.calls += 1
-        ref = np.float64(self.sign if init is not None else 0.0)
-        if init is None:  # (an array either way: one compiled program for both)
+        warm = init is not None
+        ref = np.float64(self.sign if warm else 0.0)
+        if not warm:  # (an array either way: one compiled program for both)
             init = undeformed_unknowns(self.topo, finger)
         solve = lambda: _direct_core(self.topo, self.integrator, self.options, finger, init, ref)
         sol, ok, sign = solve()
@@ -368,11 +369,37 @@ class _Stepper:
             self.calls += 1
             sol, ok, sign = solve()
             ok = bool(ok)
+        if not ok and warm:
+            sol, ok, sign = self._through_softer_support(finger, init, ref, (sol, ok, sign))
         if ok:
             self.sign = float(sign)
         else:
             self.failure = sol.result
         return sol, ok
+
+    def _through_softer_support(self, finger, init, ref, failed):
+        """A support much stiffer than the objects has a narrow basin of convergence where
+        the back beam barely touches it (the penalty's smoothed onset, whose slope rises
+        from 0 to k_s within support_smoothing): Newton from a neighbouring equilibrium can
+        overshoot it. The same equilibrium is then reached through a ladder of softer
+        supports, each solve started from the one before (the penalty enters the compiled
+        program as data: no recompilation). The result is that of the finger's own
+        stiffness; `failed` is returned when a rung fails."""
+        k, k_s = float(stiffness(finger)), float(support_stiffness(finger))
+        if not k_s > 4.0 * k:
+            return failed
+        rungs = int(np.ceil(np.log(k_s / k) / np.log(4.0)))
+        guess = init
+        for k_rung in [*(k * 4.0 ** np.arange(rungs)), k_s]:
+            self.calls += 1
+            soft = _with_stiffness(finger, k, float(k_rung))
+            sol, ok, sign = _direct_core(
+                self.topo, self.integrator, self.options, soft, guess, ref
+            )
+            if not bool(ok):
+                return failed
+            guess = sol.unknowns
+        return sol, ok, sign
 
     def follow(self, at, t0, t1, init, first_step, min_step, prev=None, max_step=np.inf, stop=None):
         """Equilibria from parameter t0 to t1 (finger = at(t)), each started from a linear
@@ -800,6 +827,20 @@ class ReleaseTrace(eqx.Module):
     message: str
 
 
+def _with_friction_raised(stepper: _Stepper, finger: Finger, mu: float, start: Solution):
+    """The equilibrium of `finger` (friction mu) reached from `start`, the frictionless
+    one, along a path of growing friction: the onset of a pull, where full friction at once
+    moves the equilibrium too far for Newton (the object's contact force turns by
+    atan(mu)). Returns (solution, ok)."""
+
+    def at(fraction):
+        return _with_contact(finger, friction=fraction * mu)
+
+    reached, sol, ok = stepper.follow(at, 0.0, 1.0, start, 0.25, 1.0 / 512)
+    stepper.prev = None  # (a point of this path, not of the pull's)
+    return sol, ok and reached >= 1.0
+
+
 def release_force(
     g: GraspSolution,
     *,
@@ -844,6 +885,9 @@ def release_force(
     complete, message = False, "reached max_pull"
     # the grasp itself, re-solved with the pull's friction: the onset of the pull
     sol, ok = stepper.solve(at(0.0), g.solution.unknowns)
+    mu = float(finger.contact.friction)
+    if not ok and mu > 0:
+        sol, ok = _with_friction_raised(stepper, at(0.0), mu, g.solution)
     if ok:
         res = contact_result(at(0.0), sol, w)
         pulls.append(0.0)

@@ -312,7 +312,7 @@ def test_best_design_files_hold_each_optimised_object_and_the_friction(tmp_path)
     text = text.replace("[[design]]", extra + "[[design]]", 1)
     p = _load(text, tmp_path)
     x = np.array([18.0, 50.0])
-    anchors = types.SimpleNamespace(stiffness=np.array([3.0, 4.0]))
+    anchors = types.SimpleNamespace(stiffness=np.array([[3.0, 30.0], [4.0, 40.0]]))  # (k, k_s)
     texts = O._best_tomls(p, x, 3, 1.25, anchors)
     assert len(texts) == 2
     assert O._best_path("d/best.toml", 1) == "d/best_object1.toml"
@@ -491,11 +491,12 @@ def test_optimizer_improves_the_contact_force_within_the_bounds(loose):
     assert all(m >= 0 for m in run.best["margins"].values())
     # the best design file reproduces the best objective through a fresh grasp
     finger, settings = fr.io.load_finger(run.best_toml)
+    k, k_s = (jnp.asarray(float(v)) for v in O._setup(p).anchors.stiffness[0])
     g = fr.grasp(
         eqx.tree_at(
-            lambda f: f.contact.stiffness,
+            lambda f: (f.contact.stiffness, f.contact.support_stiffness),
             finger,
-            jnp.asarray(float(O._setup(p).anchors.stiffness[0])),
+            (k, k_s),
             is_leaf=lambda x: x is None,
         ),
         settings.grasp.closing,
