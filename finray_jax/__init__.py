@@ -53,6 +53,9 @@ from ._solve import SolverOptions as SolverOptions
 from ._solve import limit_load as limit_load
 from ._solve import solve_finger as solve_finger
 from ._solve import topology_of as topology_of
+from ._stability import CriticalPoint as CriticalPoint
+from ._stability import Stability as Stability
+from ._stability import stability as stability
 from .batch import BatchResult as BatchResult
 from .batch import solve_batch as solve_batch
 from .design import get_design as get_design

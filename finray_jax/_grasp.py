@@ -31,7 +31,14 @@ from ._finger import BACK, FRONT, Finger, FingerError
 from ._objects import HalfPlane, _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
-from ._solve import SolverOptions, _direct_core, prepare, resolve_mode, undeformed_unknowns
+from ._solve import (
+    SolverOptions,
+    _direct_core,
+    prepare,
+    resolve_mode,
+    undeformed_unknowns,
+)
+from ._stability import CriticalPoint, Stability, stability_of, stable_neighbours
 from ._types import as_float
 
 GRASP_STEPS = 16  # default integration steps per segment for contact problems
@@ -213,6 +220,9 @@ class GraspSolution(eqx.Module):
     they are relative to it at that closing; stiffness, support_stiffness: the objects'
     and the support's penalty stiffness used (after any automatic stiffening; the finger
     holds both); holding_factor: 2 for a symmetric two-finger grasp, else 1.
+    stability: whether the equilibrium is stable (`Stability`; None when not tested).
+    critical_points: where the closing path (or a stiffening or friction path on the way)
+        lost stability and how it went on (`CriticalPoint`).
     """
 
     solution: Solution
@@ -226,6 +236,8 @@ class GraspSolution(eqx.Module):
     topology: object = eqx.field(static=True, default=None)
     direction: tuple = eqx.field(static=True, default=(-1.0, 0.0))
     integrator: Integrator = Integrator(steps=GRASP_STEPS)
+    stability: Stability | None = eqx.field(static=True, default=None)
+    critical_points: tuple[CriticalPoint, ...] = eqx.field(static=True, default=())
 
     @property
     def status(self) -> str:
@@ -315,6 +327,9 @@ def _shape_key(topo):
     return (topo.mode, topo.base_kinds, topo.n_crossbeams, topo.tapered, contact)
 
 
+MAX_CRITICAL = 8  # critical points a stepper goes past (each costs up to 8 solves)
+
+
 class _Stepper:
     """Warm-started equilibria along a path of object displacements, with step halving.
 
@@ -351,6 +366,9 @@ class _Stepper:
         self.sign = 0.0
         self.prev = None  # (t, unknowns) of the point before the last one `follow` accepted
         self.failure = RESULTS.nonlinear_divergence  # the result of the last failed solve
+        self.rejected = None  # the last solve's equilibrium when rejected for det J's sign
+        self.critical = []  # CriticalPoints the paths passed
+        self.direction = None  # the objects' closing direction, to report normal forces
 
     def solve(self, finger, init):
         self.calls += 1
@@ -371,11 +389,64 @@ class _Stepper:
             ok = bool(ok)
         if not ok and warm:
             sol, ok, sign = self._through_softer_support(finger, init, ref, (sol, ok, sign))
+        self.rejected = None
         if ok:
             self.sign = float(sign)
         else:
             self.failure = sol.result
+            if bool(sol.result == RESULTS.branch_changed):
+                self.rejected = sol
         return sol, ok
+
+    def stability(self, finger, sol):
+        return stability_of(self.topo, self.integrator, finger, sol.unknowns)
+
+    def stable_next_to(self, t_last, sol_last, t, finger, seed, stab):
+        """Go on past a critical point: the stable equilibria of `finger` (at path
+        parameter t) that Newton reaches from the equilibrium `seed` displaced along its
+        softest mode (`stab`: the seed's Stability), the one nearest the last stable point
+        `sol_last` (at t_last) first. Records a CriticalPoint; returns the
+        [(solution, Stability)] found."""
+        found = stable_neighbours(
+            lambda guess: self.solve(finger, guess),
+            lambda s: self.stability(finger, s),
+            seed.unknowns,
+            stab,
+        )
+        last = np.asarray(sol_last.unknowns)
+        found.sort(key=lambda e: float(np.max(np.abs(np.asarray(e[0].unknowns) - last))))
+        forces = tuple(self.normal_force(finger, s) for s, _ in found)
+        self.critical.append(CriticalPoint((t_last, t), stab.min_eigenvalue, bool(found), forces))
+        if found:
+            self.sign = 0.0  # the new branch's sign: that of its equilibrium, solved again
+            self.solve(finger, found[0][0].unknowns)
+        return found
+
+    def past_critical(self, at, t, sol, rejected, t_next):
+        """The path's branch could not be followed past t (its last equilibrium `sol`).
+        When that is a critical point, the stable equilibria just past it: from the
+        unstable equilibrium a solve found there (`rejected`: (t_r, solution), rejected
+        for its sign of det J), or at a fold (the smallest eigenvalue at `sol` near 0,
+        under 5 % of the next) from `sol` itself, at t_next. Returns (found, where) or
+        None when it is not a critical point."""
+        if self.topo.mode != "planar" or sol is None:
+            return None
+        if rejected is not None:
+            t_r, unstable = rejected
+            stab = self.stability(at(t_r), unstable)
+            if stab.stable:
+                return None
+            return self.stable_next_to(t, sol, t_r, at(t_r), unstable, stab), t_r
+        stab = self.stability(at(t), sol)
+        values = stab.eigenvalues
+        if values.size < 2 or not values[0] < 0.05 * values[1]:
+            return None
+        return self.stable_next_to(t, sol, t_next, at(t_next), sol, stab), t_next
+
+    def normal_force(self, finger, sol):
+        if self.direction is None:
+            return float("nan")
+        return float(contact_result(finger, sol, self.direction).normal_force)
 
     def _through_softer_support(self, finger, init, ref, failed):
         """A support much stiffer than the objects has a narrow basin of convergence where
@@ -393,9 +464,7 @@ class _Stepper:
         for k_rung in [*(k * 4.0 ** np.arange(rungs)), k_s]:
             self.calls += 1
             soft = _with_stiffness(finger, k, float(k_rung))
-            sol, ok, sign = _direct_core(
-                self.topo, self.integrator, self.options, soft, guess, ref
-            )
+            sol, ok, sign = _direct_core(self.topo, self.integrator, self.options, soft, guess, ref)
             if not bool(ok):
                 return failed
             guess = sol.unknowns
@@ -411,6 +480,7 @@ class _Stepper:
         stop: called as stop(t, solution) at every accepted point; the path ends there
         (ok) when it returns True."""
         t, sol, h = t0, init, min(first_step, max_step)
+        rejected = None  # (t, equilibrium) of the nearest solve rejected for det J's sign
         while t < t1 - 1e-12:
             t_try = min(t + h, t1)
             guess = None if sol is None else sol.unknowns
@@ -421,14 +491,28 @@ class _Stepper:
                 if sol is not None:
                     prev = (t, sol.unknowns)
                 h = min(_growth(int(trial.iterations)) * h, t1 - t0, max_step)
-                t, sol = t_try, trial
+                t, sol, rejected = t_try, trial, None
                 if stop is not None and stop(t, sol):
                     break
             else:
+                if self.rejected is not None:
+                    rejected = (t_try, self.rejected)
                 h = 0.5 * h
                 if h < min_step:
-                    self.prev = prev
-                    return t, sol, False
+                    # The branch ends (a fold) or loses stability (a bifurcation) within
+                    # min_step: go on on a stable branch next to it, if there is one.
+                    t_next = min(t + 2.0 * min_step, t1)
+                    past = None
+                    if len(self.critical) < MAX_CRITICAL:
+                        past = self.past_critical(at, t, sol, rejected, t_next)
+                    if past is None or not past[0]:
+                        if past is not None:
+                            self.failure = RESULTS.stability_lost
+                        self.prev = prev
+                        return t, sol, False
+                    (found, t), prev, rejected = past, None, None
+                    sol = found[0][0]
+                    h = min(first_step, max_step, 64.0 * min_step)
         self.prev = prev
         return t, sol, True
 
@@ -490,6 +574,7 @@ def grasp(
     options: SolverOptions = SolverOptions(),
     stiffen: bool = True,
     topology=None,
+    check_stability: bool = True,
 ) -> GraspSolution:
     """Close the finger on its objects and solve the contact equilibrium.
 
@@ -504,6 +589,11 @@ def grasp(
     topology: the segment table of an earlier grasp of the same finger (its `.topology`):
         the beams are cut at the same points whatever the design values, so the answer is
         on that grasp's discretisation and nothing recompiles. None: cut for this finger.
+    check_stability: test the final equilibrium's stability (`GraspSolution.stability`,
+        planar fingers); an unstable one is replaced by a stable equilibrium next to it
+        when Newton finds one, else reported with the status "unstable". Along the path a
+        solve past a fold or a bifurcation is tested whatever this says
+        (`GraspSolution.critical_points`).
     """
     if (closing is None) == (actuator_force is None):
         raise FingerError("grasp needs exactly one of closing= and actuator_force=")
@@ -519,6 +609,7 @@ def grasp(
             raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
     # (check_objects validated the finger)
     stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
+    stepper.direction = w
     k, k_s = float(stiffness(finger)), float(support_stiffness(finger))
     finger = _with_stiffness(finger, k, k_s)
 
@@ -578,6 +669,16 @@ def grasp(
         if closing is not None or not (ok and stiffened):
             break
         start = (t, float(res.actuator_force), sol)  # (the secant starts from there)
+    stab = None
+    if ok and check_stability and stepper.topo.mode == "planar":
+        stab = stepper.stability(at(t), sol)
+        if not stab.stable:
+            found = stepper.stable_next_to(t, sol, t, at(t), sol, stab)
+            if found:
+                sol, stab = found[0]
+                res = contact_result(at(t), sol, w)
+            else:
+                ok, stepper.failure = False, RESULTS.unstable_equilibrium
     if not ok:  # (the last accepted state, with why the next step failed)
         code = RESULTS.where(jnp.asarray(False), RESULTS.successful, stepper.failure)
         sol = eqx.tree_at(lambda s: s.result, sol, code)
@@ -593,6 +694,8 @@ def grasp(
         stepper.topo,
         tuple(float(x) for x in w),
         integrator,
+        stab,
+        tuple(stepper.critical),
     )
 
 
@@ -825,6 +928,8 @@ class ReleaseTrace(eqx.Module):
     peak_pull: float
     complete: bool  # the trace reached the loss of contact (else it stopped early)
     message: str
+    # where the pull's path lost stability and how it went on (`CriticalPoint`)
+    critical_points: tuple = eqx.field(static=True, default=())
 
 
 def _with_friction_raised(stepper: _Stepper, finger: Finger, mu: float, start: Solution):
@@ -876,6 +981,7 @@ def release_force(
     if max_pull is None:
         max_pull = float(np.ptp(np.asarray(g.solution.front.position[:, 2]))) + 2 * step
     stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
+    stepper.direction = w
 
     def at(t):
         return _moved(finger, t * w)
@@ -911,7 +1017,10 @@ def release_force(
                 break
         if not ok:
             message = f"equilibrium lost at pull {t:.4g} mm (the step could not be refined)"
-            if bool(stepper.failure == RESULTS.contact_outside_near_segments):
+            if stepper.failure in (
+                RESULTS.contact_outside_near_segments,
+                RESULTS.stability_lost,
+            ):
                 message += f": {RESULTS[stepper.failure]}"
             break
     f = np.asarray(forces)
@@ -933,4 +1042,5 @@ def release_force(
         peak_pull=peak_pull,
         complete=complete,
         message=message,
+        critical_points=tuple(stepper.critical),
     )

@@ -44,6 +44,23 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "at that peak (its closing and contact.actuator_force): the most this finger "
         "applies to the object."
     )
+    branch_changed = (
+        "Newton converged, but to an equilibrium whose sign of det J differs from that of "
+        "the path it continues: a fold or a bifurcation lies between them. A path of "
+        "equilibria goes on past it only on a stable branch (see `CriticalPoint`)."
+    )
+    unstable_equilibrium = (
+        "The equilibrium found is unstable (its tangent stiffness has a negative "
+        "eigenvalue, or a segment buckles with both ends held: see `.stability`), and "
+        "Newton started from it displaced along its softest mode found no stable one "
+        "next to it. The finger would not stay there."
+    )
+    stability_lost = (
+        "Along the path the equilibrium lost its stability (a fold or a bifurcation: the "
+        "tangent stiffness's smallest eigenvalue passed 0) and no stable equilibrium was "
+        "found next to the unstable one past it: the finger would snap. The result is the "
+        "last stable equilibrium; `critical_points` says where it was lost."
+    )
     continuation_steps_exhausted = (
         "Load continuation took SolverOptions.max_continuation_steps arc-length steps "
         "without reaching the full load or a fold, and the load factor was still rising. "
@@ -53,9 +70,11 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
 
 
 def status_name(result) -> str:
-    """'converged' | 'beyond_limit_load' | 'failed' for a concrete result."""
+    """'converged' | 'beyond_limit_load' | 'unstable' | 'failed' for a concrete result."""
     if result == RESULTS.successful:
         return "converged"
+    if result == RESULTS.unstable_equilibrium:
+        return "unstable"
     if result == RESULTS.beyond_limit_load:
         return "beyond_limit_load"
     return "failed"

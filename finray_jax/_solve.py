@@ -965,6 +965,7 @@ def _direct_core(
     one = jnp.ones(())
     y, traj = _attach_implicit_gradient(problem, one, direct.y, options.linear_solver)
     code = RESULTS.where(ok, RESULTS.successful, RESULTS.nonlinear_divergence)
+    code = RESULTS.where(direct.ok & ~ok, RESULTS.branch_changed, code)
     code = RESULTS.where(direct.outside, RESULTS.contact_outside_near_segments, code)
     keep = keep_jacobian and options.linear_solver == "banded"
     jacobian = lax.stop_gradient(direct.factors) if keep else None

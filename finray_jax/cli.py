@@ -27,7 +27,12 @@ from .studies import StudyRecordError
 
 EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130  # (128 + SIGINT, as a shell reports it)
-STATUS_EXIT = {"converged": EXIT_OK, "beyond_limit_load": EXIT_BEYOND, "failed": EXIT_FAILED}
+STATUS_EXIT = {
+    "converged": EXIT_OK,
+    "beyond_limit_load": EXIT_BEYOND,
+    "unstable": EXIT_FAILED,
+    "failed": EXIT_FAILED,
+}
 
 # The default finger of `finray demo`: identical to examples/finger1.toml (a test checks).
 DEMO_FINGER_TOML = """\
@@ -868,6 +873,7 @@ def _grasp_dict(g, release=None) -> dict:
         "penalty_stiffness": float(g.stiffness),
         "support_penalty_stiffness": float(g.support_stiffness),
         "max_residual": float(g.solution.max_residual),
+        "stability": _stability_dict(g),
         "contact": {
             "force": np.asarray(c.force).tolist(),
             "normal_force": float(c.normal_force),
@@ -909,6 +915,32 @@ def _grasp_dict(g, release=None) -> dict:
     return out
 
 
+def _stability_dict(g):
+    s = g.stability
+    if s is None:
+        return None
+    return {
+        "stable": s.stable,
+        "min_eigenvalue": s.min_eigenvalue,
+        "eigenvalues": s.eigenvalues.tolist(),
+        "conjugate_segments": list(s.conjugate_segments),
+        "critical_points": [c.describe() for c in g.critical_points],
+    }
+
+
+def _stability_lines(g) -> list[str]:
+    s = g.stability
+    lines = []
+    if s is not None:
+        state = "stable" if s.stable else s.message
+        lines.append(
+            f"  stability         {state} (smallest eigenvalues of the tangent stiffness "
+            + ", ".join(f"{v:.3g}" for v in s.eigenvalues[:3])
+            + ")"
+        )
+    return lines + [f"  path              {c.describe()}" for c in g.critical_points]
+
+
 def _support_lines(g) -> list[str]:
     if g.finger.adaptor.support_length is None:
         return []
@@ -936,8 +968,9 @@ def _grasp_lines(g, name="") -> list[str]:
             f"  actuator force    {_f(c.actuator_force)} N",
         ]
         + _support_lines(g)
+        + _stability_lines(g)
         + [f"  warning: {w}" for w in g.penetration_warnings()]
-        + ([f"  {fr.RESULTS[g.solution.result]}"] if g.status == "failed" else [])
+        + ([f"  {fr.RESULTS[g.solution.result]}"] if g.status in ("failed", "unstable") else [])
     )
 
 
@@ -1025,6 +1058,34 @@ def _study_finger(path):
     return finger
 
 
+def _placed_rows(cmp, paper_gain) -> list[list[str]]:
+    if cmp.placed is None:
+        return []
+    height, o, m = cmp.placed
+    return [
+        [
+            f"  object at {height:g} mm (N)",
+            _f(o.contact.normal_force),
+            _f(m.contact.normal_force),
+            _percent(cmp.placed_gain),
+            f"+{paper_gain:.0f} % (simulated)",
+        ]
+    ]
+
+
+def _placed_note(cmp) -> list[str]:
+    if cmp.placed is None:
+        return []
+    from .studies import ABOVE_SUPPORT
+
+    return [
+        f"  The paper's gain is what this model gives with the object {ABOVE_SUPPORT:g} mm "
+        "above the end of the",
+        f"  support (here at {cmp.placed[0]:g} mm). At 60 mm the object presses on crossbeams "
+        "the support backs.",
+    ]
+
+
 def _comparison_lines(cmp) -> list[str]:
     from .studies import PAPER_CONTACT_FORCE_GAIN, PAPER_RELEASE_RANGE
 
@@ -1037,6 +1098,7 @@ def _comparison_lines(cmp) -> list[str]:
             _percent(cmp.contact_force_gain),
             f"+{PAPER_CONTACT_FORCE_GAIN:.0f} % (simulated)",
         ],
+        *_placed_rows(cmp, PAPER_CONTACT_FORCE_GAIN),
         ["contact length (mm)", _f(o.contact_length), _f(m.contact_length), "", ""],
         ["crossbeam force x (N)", _f(o.crossbeam_force[0]), _f(m.crossbeam_force[0]), "", ""],
         ["crossbeam force z (N)", _f(o.crossbeam_force[2]), _f(m.crossbeam_force[2]), "", ""],
@@ -1059,7 +1121,7 @@ def _comparison_lines(cmp) -> list[str]:
         "change",
         "paper",
     ]
-    return _table(head, rows)
+    return _table(head, rows) + _placed_note(cmp)
 
 
 def _cmd_compare(args) -> int:
@@ -1096,6 +1158,14 @@ def _cmd_compare(args) -> int:
             "original": _grasp_dict(cmp.original),
             "modified": _grasp_dict(cmp.modified),
             "contact_force_gain_percent": cmp.contact_force_gain,
+            "placed": None
+            if cmp.placed is None
+            else {
+                "height": cmp.placed[0],
+                "original": _grasp_dict(cmp.placed[1]),
+                "modified": _grasp_dict(cmp.placed[2]),
+                "contact_force_gain_percent": cmp.placed_gain,
+            },
             "release": {
                 str(d): {
                     "original": a.peak,

@@ -122,6 +122,13 @@ def test_compare_and_clamp_study(tmp_path):
     d = json.loads((tmp_path / "compare.json").read_text())
     assert d["modified"]["contact"]["normal_force"] > d["original"]["contact"]["normal_force"]
     assert set(d["release"]) == {"35.0", "50.0", "65.0"}
+    # The paper's +260 % (a ratio of 3.6) where the object presses 18 mm above the
+    # support's end; over 1-10 mm of closing the ratio there stays within 3.37-3.64
+    placed = d["placed"]
+    assert placed["height"] == 78.0 and "object at 78 mm" in stdout
+    assert placed["contact_force_gain_percent"] == pytest.approx(260.0, abs=15.0)
+    assert d["contact_force_gain_percent"] > 4 * placed["contact_force_gain_percent"]
+    assert placed["modified"]["stability"]["stable"]
     code, stdout, err = run(["clamp-study", "--out", str(tmp_path)])
     assert code == 0, err
     s = json.loads((tmp_path / "clamp_study.json").read_text())

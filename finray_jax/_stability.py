@@ -1,0 +1,340 @@
+"""Elastic stability of an equilibrium: the tangent stiffness of the shooting problem.
+
+An equilibrium is stable when the second variation of the potential energy (strain
+energy, penalty contact, dead loads) is positive for every admissible variation. Cut the
+finger at its shooting nodes (the segments' ends, joined where the residual's kinematic
+rows join them): the second variation is then positive if and only if
+
+1. every segment, held at both ends, is stable by itself: along the segment the block
+   B(s) = d(position, angle)(s) / d(force, moment)(start) of its flow Jacobian stays
+   non-singular (no conjugate point; det B > 0 just after the start, so a sign change
+   anywhere on (0, l] is one), and
+2. the condensed stiffness K of the nodes, under the imposed displacements (clamped and
+   pinned bases, the objects where they are), is positive definite.
+
+That is the Schur complement of the energy's Hessian on the segments' interiors, so the
+two tests together are exact for the discrete model (its flow Jacobians are those of the
+integration the solver uses). A segment with flow Jacobian [[A, B], [C, D]] (kinematics
+k = (x, z, theta), wrench w = (nx, nz, my), end from start) has end wrenches
+w0 = B^-1 (k1 - A k0) and w1 = C k0 + D w0; the wrenches the nodes apply to it, (-w0, w1),
+differentiated in (k0, k1), give its 6 x 6 stiffness, and K is their sum over the nodes.
+Penalty contact is conservative, so K is symmetric to the integration's error; friction is
+not, and the test then reads the symmetric part (the quasi-static energy test, with the
+friction's stiffness averaged).
+
+K is reported in the scaled coordinates (x / L, z / L, theta) and over F L, with L and F
+the solver's length and force scales (the front beam's length, and its EI / L^2): its
+eigenvalues are dimensionless, of order 1 for an unloaded finger, and a fold or a
+bifurcation is where the smallest one passes 0.
+"""
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._finger import FingerError
+from ._rod import Integrator, flow_jacobians
+
+KIN = slice(0, 3)  # (x, z, theta) in a planar state
+WRENCH = slice(3, 6)  # (nx, nz, my)
+
+
+@dataclasses.dataclass(frozen=True)
+class Stability:
+    """Whether an equilibrium is stable, and its softest mode.
+
+    stable: no conjugate point inside a segment and the condensed tangent stiffness is
+        positive definite.
+    min_eigenvalue: the smallest eigenvalue of the condensed stiffness (dimensionless,
+        see the module's note): negative on an unstable equilibrium, near 0 near a fold or
+        a bifurcation.
+    eigenvalues: the smallest few, ascending.
+    conjugate_segments: segments that buckle with both ends held (empty when none).
+    asymmetry: ||K - K^T|| / ||K||: the integration's error without friction, the
+        friction's non-conservative part with it.
+    modes: (k, n_nodes, 3) the eigenvectors of `eigenvalues` as node displacements (x, z
+        in mm; theta in rad), each scaled so that its largest entry in the scaled
+        coordinates is 1.
+    perturbations: (k, *unknowns.shape) the scaled shooting unknowns' change that moves
+        the nodes along each mode (each segment's start wrench from its two ends): a start
+        for Newton off this equilibrium toward a neighbouring branch.
+    """
+
+    stable: bool
+    min_eigenvalue: float
+    eigenvalues: np.ndarray
+    conjugate_segments: tuple[int, ...]
+    asymmetry: float
+    modes: np.ndarray
+    perturbations: np.ndarray
+
+    @property
+    def message(self) -> str:
+        if self.stable:
+            return ""
+        why = []
+        if self.min_eigenvalue < 0:
+            why.append(
+                f"the tangent stiffness has a negative eigenvalue ({self.min_eigenvalue:.3g})"
+            )
+        if self.conjugate_segments:
+            why.append(f"segments {list(self.conjugate_segments)} buckle with both ends held")
+        return "unstable equilibrium: " + "; ".join(why)
+
+
+class _Nodes:
+    """The shooting nodes: classes of segment slots (slot i the start of segment i, S + i
+    its end) that the kinematic rows make one point, and their fixed directions."""
+
+    def __init__(self, topo, L, length, rigid):
+        S = topo.n_segments
+        parent = list(range(2 * S))
+
+        def find(a):
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        def union(a, b):
+            parent[find(a)] = find(b)
+
+        ix = topo.index
+        for a, b in zip(ix.kin_a, ix.kin_b):
+            union(int(a), int(b))
+        tiny = 1e-12 * L
+        flexible = np.asarray(length - rigid) > tiny
+        for i in np.flatnonzero(~flexible):
+            if float(rigid[i]) <= tiny:  # a zero-length segment: its ends are one point
+                union(i, S + i)
+        roots = sorted({find(a) for a in range(2 * S)})
+        number = {r: n for n, r in enumerate(roots)}
+        self.of = np.asarray([number[find(a)] for a in range(2 * S)])
+        self.count = len(roots)
+        fixed = np.zeros((self.count, 3), dtype=bool)
+        for b in (0, 1):
+            kind = topo.base_kinds[b]
+            node = self.of[topo.first[b]]
+            if kind == "clamped":
+                fixed[node] = True
+            elif kind == "pinned":
+                fixed[node, :2] = True
+        # A segment held rigidly over its whole length (inside a clamp, which starts at a
+        # clamped base) carries its start's fixing to its end.
+        rigid_whole = [i for i in np.flatnonzero(~flexible) if float(rigid[i]) > tiny]
+        changed = True
+        while changed:
+            changed = False
+            for i in rigid_whole:
+                a, b = self.of[i], self.of[S + i]
+                if fixed[a].all() and not fixed[b].all():
+                    fixed[b] = True
+                    changed = True
+        for i in rigid_whole:
+            if not fixed[self.of[i]].all():
+                raise FingerError(
+                    f"segment {i} is held rigidly but its start is not fixed: a clamped "
+                    "length needs a clamped base"
+                )
+        self.fixed = fixed
+        self.flexible = flexible
+
+
+def _full_jacobian(jac, translation_free):
+    """(..., 6, 6) d(x, z, theta, nx, nz, my)(s) / d(same)(start) from a flow Jacobian in
+    the start state's tangent coordinates (without the two translations when the flow
+    commutes with them: those columns are then the identity on the position)."""
+    rows = jac[..., :6, :]
+    if not translation_free:
+        return rows
+    shape = rows.shape[:-1] + (2,)
+    trans = np.zeros(shape)
+    trans[..., 0, 0] = 1.0
+    trans[..., 1, 1] = 1.0
+    return np.concatenate([trans, rows], axis=-1)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _at_equilibrium(topo, integrator, finger, Y, lam):
+    """Every segment's flow Jacobian at every step point, (S, steps + 1, n_full, k), with
+    the contact law on every segment (exact where none acts); the unknowns' scale, the
+    segments' lengths and rigid parts, and the length and force scales."""
+    from ._solve import _make_problem
+
+    problem = _make_problem(topo, integrator, finger)
+    starts = problem.start_states(jnp.reshape(Y, (topo.n_segments, -1)))
+    Q = problem.params(lam)
+    jac = flow_jacobians(problem.model, integrator, starts, Q, True, False, True)[1]
+    t = problem.table
+    return jac, problem.scale(), t.length, t.rigid, problem.geo.L, problem.geo.F
+
+
+def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -> Stability:
+    """The stability of the equilibrium of `finger` with scaled unknowns Y on the segment
+    table `topo` (eager)."""
+    if topo.mode != "planar":
+        raise FingerError(
+            f"stability is computed for planar fingers (mode='planar'), got mode={topo.mode!r}"
+        )
+    out = _at_equilibrium(topo, integrator, finger, jnp.asarray(Y), jnp.asarray(lam, float))
+    jac, y_scale, length, rigid, L, F = (np.asarray(x) for x in out)
+    jac = _full_jacobian(jac, topo.model.translation_free)
+    nodes = _Nodes(topo, float(L), length, rigid)
+    S = topo.n_segments
+    L, F = float(L), float(F)
+    out = condensed_stability(
+        jac,
+        nodes.of[:S],
+        nodes.of[S:],
+        nodes.fixed,
+        nodes.flexible,
+        kin_scale=np.array([L, L, 1.0]),
+        wrench_scale=np.array([F, F, F * L]),
+        y_scale=np.asarray(y_scale),
+        n_eigenvalues=n_eigenvalues,
+    )
+    shape = (out.perturbations.shape[0],) + np.shape(Y)
+    return dataclasses.replace(out, perturbations=out.perturbations.reshape(shape))
+
+
+def condensed_stability(
+    jac, start_node, end_node, fixed, flexible, kin_scale, wrench_scale, y_scale, n_eigenvalues=4
+) -> Stability:
+    """The two tests of the module's note, from every segment's flow Jacobian at its step
+    points, jac (S, n + 1, 6, 6) in (x, z, theta, nx, nz, my); the nodes of its start and
+    end (S,); fixed (n_nodes, 3): the imposed directions; flexible (S,): segments with a
+    flexible part (the others join or fix their ends). Scales: of the kinematics, the
+    wrench and the unknowns (Y = y / y_scale)."""
+    S = jac.shape[0]
+    n_nodes = fixed.shape[0]
+    unit = wrench_scale[0] * kin_scale[0]  # F L
+
+    # 1. Conjugate points: det of the scaled B(s) at every step point after the start.
+    B = jac[:, 1:, KIN, WRENCH] * wrench_scale[None, None, None, :]
+    B = B / kin_scale[None, None, :, None]
+    det = np.linalg.det(B)
+    conjugate = tuple(int(i) for i in np.flatnonzero(flexible & np.any(det <= 0, axis=1)))
+
+    # 2. The condensed stiffness, in scaled node coordinates.
+    K = np.zeros((3 * n_nodes, 3 * n_nodes))
+    solves = {}
+    scale = np.concatenate([kin_scale, kin_scale])
+    for i in np.flatnonzero(flexible):
+        phi = jac[i, -1]
+        A, C, D = phi[KIN, KIN], phi[WRENCH, KIN], phi[WRENCH, WRENCH]
+        Binv = np.linalg.inv(phi[KIN, WRENCH])
+        solves[int(i)] = (A, Binv)
+        Ke = np.block([[Binv @ A, -Binv], [C - D @ Binv @ A, D @ Binv]])
+        dofs = np.concatenate([3 * start_node[i] + np.arange(3), 3 * end_node[i] + np.arange(3)])
+        K[np.ix_(dofs, dofs)] += Ke * scale[:, None] * scale[None, :] / unit
+    free = np.flatnonzero(~fixed.reshape(-1))
+    Kf = K[np.ix_(free, free)]
+    norm = max(np.linalg.norm(Kf), np.finfo(float).tiny)
+    asymmetry = float(np.linalg.norm(Kf - Kf.T) / norm)
+    values, vectors = np.linalg.eigh(0.5 * (Kf + Kf.T))
+    k = min(n_eigenvalues, values.size)
+    V = np.zeros((k, 3 * n_nodes))
+    V[:, free] = (vectors[:, :k] / np.max(np.abs(vectors[:, :k]), axis=0)).T
+    modes = V.reshape(k, -1, 3) * kin_scale
+
+    # The unknowns' change along each mode: each flexible segment's start wrench from its
+    # two ends' displacements (0 on the rest, whose wrench the kinematics do not fix).
+    dY = np.zeros((k, S, 6))
+    dY[:, :, KIN] = modes[:, start_node]
+    for i, (A, Binv) in solves.items():
+        dk = modes[:, end_node[i]] - modes[:, start_node[i]] @ A.T
+        dY[:, i, WRENCH] = dk @ Binv.T
+    min_eig = float(values[0]) if values.size else np.inf
+    return Stability(
+        stable=bool(min_eig > 0 and not conjugate),
+        min_eigenvalue=min_eig,
+        eigenvalues=values[:k].copy(),
+        conjugate_segments=conjugate,
+        asymmetry=asymmetry,
+        modes=modes,
+        perturbations=dY / y_scale,
+    )
+
+
+def stability(result, finger=None, *, integrator=None, topology=None) -> Stability:
+    """The stability of a computed equilibrium (eager; planar fingers).
+
+    result: a `GraspSolution` (its own finger, segment table and integrator), or a
+        `Solution` or `Fold` of `finger` (pass the integrator and topology it was solved
+        with, when not the defaults).
+    """
+    from ._grasp import GraspSolution
+    from ._solve import topology_of
+
+    if isinstance(result, GraspSolution):
+        finger, topology, integrator = result.finger, result.topology, result.integrator
+        result = result.solution
+    if finger is None:
+        raise FingerError("stability(solution, finger): pass the finger it was solved for")
+    if topology is None:
+        topology = topology_of(finger, getattr(result, "mode", "planar"))
+    if integrator is None:
+        steps = getattr(result, "steps", 0)
+        integrator = Integrator(steps=steps) if steps else Integrator()
+    return stability_of(topology, integrator, finger, result.unknowns, result.load_factor)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CriticalPoint:
+    """Where a path of equilibria lost its stability: a fold of the path, or a bifurcation.
+
+    between: the path parameter (a grasp's closing, mm) of the last stable equilibrium and
+        where the path went on (or tried to).
+    min_eigenvalue: the smallest eigenvalue of the tangent stiffness where the search for
+        stable equilibria started: the unstable equilibrium past the point (negative), or
+        at a fold, which no solve passed, the last stable one (near 0).
+    switched: whether the path went on, on a stable branch next to it.
+    normal_forces: the normal force on the objects of every stable equilibrium found
+        there (the one the path took first); a second value means another stable branch
+        exists at that point.
+    """
+
+    between: tuple[float, float]
+    min_eigenvalue: float
+    switched: bool
+    normal_forces: tuple[float, ...]
+
+    def describe(self) -> str:
+        a, b = self.between
+        head = (
+            f"stability lost between {a:.4g} and {b:.4g} (smallest eigenvalue "
+            f"{self.min_eigenvalue:.3g} where it was tested)"
+        )
+        if not self.switched:
+            return head + ": no stable equilibrium next to it"
+        forces = ", ".join(f"{f:.4g} N" for f in self.normal_forces)
+        other = "; another stable branch exists" if len(self.normal_forces) > 1 else ""
+        return f"{head}: went on on a stable branch (normal forces {forces}){other}"
+
+
+AMPLITUDES = (0.003, 0.01, 0.03, 0.1, 0.2, 0.3)  # of a mode scaled to 1 (L, 1 rad)
+
+
+def stable_neighbours(solve, test, unknowns, stab: Stability, amplitudes=AMPLITUDES):
+    """Stable equilibria next to an unstable one: Newton started from it displaced along
+    its softest mode, each way, by growing amplitudes (the first that converges to a
+    stable equilibrium, per side). solve(guess) -> (solution, ok); test(solution) -> its
+    Stability. Returns [(solution, Stability)], distinct ones only."""
+    found = []
+    for side in (1.0, -1.0):
+        for a in amplitudes:
+            sol, ok = solve(unknowns + side * a * stab.perturbations[0])
+            if not ok:
+                continue
+            s = test(sol)
+            if s.stable:
+                if all(
+                    np.max(np.abs(np.asarray(sol.unknowns) - np.asarray(o.unknowns))) > 1e-6
+                    for o, _ in found
+                ):
+                    found.append((sol, s))
+                break
+    return found
