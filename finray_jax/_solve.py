@@ -760,9 +760,9 @@ def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
     max_corrector_steps) is accepted although its tangent turns by more than
     arccos(min_tangent_cosine) when the step of twice its length from the same point,
     rejected for its turn or its corrector iterations, turned it by less than 4/3 as
-    much. (Without this a cylinder wrapped by a tip-loaded cantilever,
-    `tests/test_wrap.py`, stopped where contact began: the step crossing it turned the
-    tangent by 40-50 degrees down to min_arc_step.)
+    much. (A cantilever that a tip force wraps on a cylinder, `tests/test_wrap.py`, has
+    such a corner where contact begins: a step across it turns the tangent by 40-50
+    degrees however short, down to min_arc_step.)
 
     A rejected step records its cause in `why` (the result a collapsed step reports):
     contact outside the near segments, a corrector that did not converge, det J changing
