@@ -12,15 +12,31 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "load. Reduce the load, or find the limit with `limit_load`."
     )
     contact_outside_near_segments = (
-        "The Newton solve evaluates contact on the segments nearest the objects only "
-        "(Contact.near_segments and the supported ones), and after three choices of them "
-        "some other segment still touched an object: the contact spans more segments. "
-        "Raise Contact.near_segments, or set it to None (every segment)."
+        "The Newton solve (at full load, or a step of the load continuation) evaluates "
+        "contact on the segments nearest the objects only (Contact.near_segments and the "
+        "supported ones), and after three choices of them some other segment still "
+        "touched an object: the contact spans more segments. Raise Contact.near_segments, "
+        "or set it to None (every segment)."
     )
     continuation_failed = (
-        "Load continuation could not reach the full load: the arc-length step fell below "
-        "SolverOptions.min_arc_step without a fold being found. Try a smaller "
-        "SolverOptions.initial_arc_step or SolverOptions.min_arc_step."
+        "Load continuation could not reach the full load: down to SolverOptions.min_arc_step "
+        "every arc-length step turned the path's tangent by more than "
+        "arccos(SolverOptions.min_tangent_cosine), or needed more than "
+        "SolverOptions.max_corrector_steps corrector iterations, and no fold was found. "
+        "Try a smaller SolverOptions.min_arc_step, or a lower min_tangent_cosine."
+    )
+    continuation_corrector_failed = (
+        "Load continuation could not reach the full load: down to SolverOptions.min_arc_step "
+        "the corrector (Newton on the arc-length system) did not converge within "
+        "SolverOptions.max_newton_steps from the predicted point. With contact the "
+        "penalty's onset can be too abrupt for the steps: try a larger "
+        "Contact.max_penetration (a smoother onset) or a smaller SolverOptions.min_arc_step."
+    )
+    continuation_branch_switch = (
+        "Load continuation could not reach the full load: down to SolverOptions.min_arc_step "
+        "every arc-length step landed where det J has the other sign while the load factor "
+        "still rose (not a fold: another branch crosses the path there, a bifurcation). "
+        "Try a smaller SolverOptions.min_arc_step, or break the symmetry of the loads."
     )
     actuator_force_not_reached = (
         "The actuator force was not reached: along the closing path the force rose to a "

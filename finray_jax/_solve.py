@@ -312,8 +312,12 @@ def _newton_lean(
     line search) and solves with the factors of J alone (bordering): with a = J^-1 r and
     b = J^-1 dr/dlam the step is dlam = (g - w t_y . a) / (t_lam - w t_y . b) and
     dy = a - b dlam, g the constraint's residual. Converged when the step is below
-    atol + rtol |z| and both residuals below atol. The last linearisation then lies within
-    that tolerance of the root, so its b and sign serve the path's tangent there. One
+    atol + rtol |z| and both residuals below atol, or when the step alone is below a tenth
+    of that (as plain Newton's `full` test: a contact penalty's round-off floor in the
+    residual, 2-5e-10 on a cantilever wrapping a cylinder under a unit tip force, would
+    otherwise keep short, smooth steps of the path iterating to max_newton_steps). The
+    last linearisation then lies within that tolerance of the root, so its b and sign
+    serve the path's tangent there. One
     function for both, so that a core that runs both (`_path`) holds one Jacobian pass:
     ref-A L1's full core compiled in 7.8-7.9 s instead of 9.8 s planar and in 11.6 s
     instead of 14.7 s in 3-D (L3 planar, 9.1-9.4 s instead of 11.5 s), with the same
@@ -391,6 +395,8 @@ def _newton_lean(
             scale = lambda z: options.atol + options.rtol * jnp.abs(z)
             small = jnp.maximum(jnp.max(jnp.abs(d_y) / scale(y)), jnp.abs(d_lam) / scale(lam))
             resid = jnp.maximum(jnp.max(jnp.abs(r)), jnp.abs(g)) < options.atol
+            # (or the step alone, below a tenth of the tolerance: see `full` above)
+            resid = resid | (small < 0.1)
             finite = jnp.all(jnp.isfinite(y)) & jnp.isfinite(lam)
             return d_y, d_lam, (small < 1.0) & resid & finite
 
@@ -718,6 +724,14 @@ class _Arc(eqx.Module):
     lam_over: jax.Array
     steps: jax.Array
     iterations: jax.Array
+    # The turn (rad) of the tangent over the last step rejected from this point although
+    # its corrector converged on the branch (same sign of det J, load rising): for turning
+    # by more than arccos(min_tangent_cosine) or for needing more than
+    # max_corrector_steps; 0 after any other step. (See `_arc_advance`: corners.)
+    turned: jax.Array
+    # Why the last step was rejected (a RESULTS item): what a continuation whose step
+    # collapses reports.
+    why: object
 
 
 def _arc_step(s: _Arc, on=True):
@@ -736,7 +750,23 @@ def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
     weighted coordinates (w y, lam) it is (-w J^-1 dr/dlam, 1), normalised and oriented
     along the last one. The first pass (a step of length zero) sets the weight w, which
     makes the tangent's shape and load parts equal, and the arc steps' unit (see
-    FIRST_STEP_CHANGE)."""
+    FIRST_STEP_CHANGE).
+
+    A corner of the path (contact that begins: with a stiff penalty the path's slope
+    changes within a penetration of a few hundredths of a millimetre, a tiny part of a
+    step) turns the tangent by the same angle however short the step that crosses it,
+    where a smooth bend turns it in proportion to the step. So a step whose corrector
+    converged on the branch (det J of the same sign, load rising, within
+    max_corrector_steps) is accepted although its tangent turns by more than
+    arccos(min_tangent_cosine) when the step of twice its length from the same point,
+    rejected for its turn or its corrector iterations, turned it by less than 4/3 as
+    much. (A cantilever that a tip force wraps on a cylinder, `tests/test_wrap.py`, has
+    such a corner where contact begins: a step across it turns the tangent by 40-50
+    degrees however short, down to min_arc_step.)
+
+    A rejected step records its cause in `why` (the result a collapsed step reports):
+    contact outside the near segments, a corrector that did not converge, det J changing
+    sign while the load still rose (another branch), or the turn and corrector tests."""
     first = ~s.started
     y1, lam1, ok, nit, b = c.y, c.lam, c.ok, c.k, c.b
     w = jnp.where(first, 1.0 / jnp.maximum(jnp.linalg.norm(b), 1e-30), s.w)
@@ -753,11 +783,28 @@ def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
     # have jumped to another branch: retry shorter. On the traced branch det(dr/dy)
     # keeps its sign until the fold, where the load factor turns back; a sign change
     # while the load still rises (or the reverse) is a jump to another branch.
-    smooth = (jnp.dot(t1, s.t) >= opts.min_tangent_cosine) & (nit <= opts.max_corrector_steps)
+    cosine = jnp.dot(t1, s.t)
+    few = nit <= opts.max_corrector_steps
+    smooth = (cosine >= opts.min_tangent_cosine) & few
     same = sign1 == sign
     rising = t1[-1] > 0.0
     folded = ok & smooth & ~same & ~rising & ~first
-    accept = ok & (first | (smooth & same & rising))
+    on_branch = ok & same & rising & ~first
+    turn = jnp.arccos(jnp.clip(cosine, -1.0, 1.0))
+    corner = on_branch & few & (s.turned > 0.0) & (turn >= 0.75 * s.turned)
+    accept = ok & (first | (smooth & same & rising) | corner)
+    turned = jnp.where(on_branch & ~smooth & ~accept, turn, 0.0)
+    why = RESULTS.where(
+        c.outside,
+        RESULTS.contact_outside_near_segments,
+        RESULTS.where(
+            ~ok,
+            RESULTS.continuation_corrector_failed,
+            RESULTS.where(
+                ~same & rising, RESULTS.continuation_branch_switch, RESULTS.continuation_failed
+            ),
+        ),
+    )
     reached = accept & (lam1 >= target) & ~first
     grow = accept & (nit <= 4) & ~s.near_fold & ~first
     ds_new = jnp.where(
@@ -786,6 +833,8 @@ def _arc_advance(s: _Arc, c: _Newton, target, opts: SolverOptions) -> _Arc:
         lam_over=jnp.where(reached, lam1, s.lam_over),
         steps=s.steps + count,
         iterations=s.iterations + count * nit,
+        turned=turned,
+        why=RESULTS.where(accept, s.why, why),
     )
 
 
@@ -814,13 +863,16 @@ def _arc_start(y0, options: SolverOptions) -> _Arc:
         lam_over=zero,
         steps=jnp.asarray(0),
         iterations=jnp.asarray(0),
+        turned=zero,
+        why=RESULTS.continuation_failed,
     )
 
 
 def _stopped(s: _Arc):
     """Why a continuation that neither reached its target nor found a fold stopped: its
-    arc step collapsed (done), or it ran out of steps while the load still rose."""
-    return RESULTS.where(s.done, RESULTS.continuation_failed, RESULTS.continuation_steps_exhausted)
+    arc step collapsed (done; the cause of the last rejection, `_Arc.why`), or it ran out
+    of steps while the load still rose."""
+    return RESULTS.where(s.done, s.why, RESULTS.continuation_steps_exhausted)
 
 
 def _fold_result(s: _Arc):
@@ -1029,6 +1081,8 @@ def _path(problem, y_start, y_und, options: SolverOptions, chord=None, phase=0):
         code = _fold_result(s1)
         off_branch = s.reached & (~newton.ok | (newton.sign != s.sign))
         code = RESULTS.where(off_branch, RESULTS.nonlinear_divergence, code)
+        outside = s.reached & newton.outside
+        code = RESULTS.where(outside, RESULTS.contact_outside_near_segments, code)
         code = RESULTS.where(p == 0, RESULTS.successful, code)
         over = _arc_over(s1, options)
         stopped = over & ~s1.reached

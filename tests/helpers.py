@@ -200,3 +200,48 @@ def contact_wrench(finger, sol, load_factor=1.0, beams=(0, 1)):
                 force -= load_factor * np.asarray(load.total_force)
                 moment -= np.cross(integrate_position(beam, s0, s1), f)
     return force, moment
+
+
+def wrapped_cantilever(P, EI, L, Rc):
+    """Inextensible elastica of a cantilever wrapping a rigid cylinder (frictionless)
+    under a dead tip force P perpendicular to its undeformed axis.
+
+    The rod is clamped along +z at the origin, where it touches the cylinder, whose
+    centreline radius (cylinder radius plus half the rod's thickness) is Rc and whose
+    centre is at (Rc, 0); the force is +x, toward the cylinder. With theta(s) the tangent
+    angle from +z toward +x, the rod wraps the cylinder from s = 0 to the lift-off
+    s = a = Rc phi (there its curvature is 1/Rc, its moment EI / Rc) and is a free
+    elastica from a to L: EI theta' = P (z(L) - z(s)), so as in `bisshopp_drucker`
+    theta'^2 = (2 P / EI)(sin phi0 - sin theta), phi0 = theta(L). Moment continuity at
+    the lift-off, theta'(a) = 1 / Rc, gives sin phi0 = sin phi + EI / (2 P Rc^2). With
+    1 + sin(theta) = 2 k^2 sin(psi)^2, k^2 = (1 + sin phi0) / 2, c = sqrt(EI / P):
+
+        L - Rc phi = c (K(k) - F(beta, k)),  sin(beta)^2 = (1 + sin phi) / (2 k^2)
+        x(L) = Rc (1 - cos phi) + (L - Rc phi) - 2 c (E(k) - E(beta, k))
+        z(L) = Rc sin phi + EI / (P Rc)          (theta'(a) = P (z(L) - z(a)) / EI)
+
+    The first fixes phi. Returns (phi, phi0, x(L), z(L)), or None when P is too small
+    for the rod to touch beyond its clamp (its curvature at the clamp stays below 1/Rc).
+    In a frictionless wrap the rod's tension is constant, P sin(phi) >= 0: the wrap
+    stays below 90 degrees however large P is.
+    """
+    c = np.sqrt(EI / P)
+    lift = EI / (2.0 * P * Rc**2)
+
+    def parts(phi):
+        m = 0.5 * (1.0 + np.sin(phi) + lift)
+        beta = np.arcsin(np.sqrt(0.5 * (1.0 + np.sin(phi)) / m))
+        return m, beta
+
+    def gap(phi):
+        m, beta = parts(phi)
+        return L - Rc * phi - c * (special.ellipk(m) - special.ellipkinc(beta, m))
+
+    if lift >= 1.0 or gap(0.0) <= 0.0:
+        return None
+    phi = optimize.brentq(gap, 0.0, np.arcsin(1.0 - lift), xtol=1e-15, rtol=1e-15)
+    m, beta = parts(phi)
+    x = Rc * (1.0 - np.cos(phi)) + (L - Rc * phi)
+    x -= 2.0 * c * (special.ellipe(m) - special.ellipeinc(beta, m))
+    z = Rc * np.sin(phi) + EI / (P * Rc)
+    return phi, np.arcsin(np.sin(phi) + lift), x, z
