@@ -34,6 +34,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.linalg
 
 from ._finger import FingerError
 from ._rod import Integrator, flow_jacobians
@@ -219,39 +220,47 @@ def condensed_stability(
     conjugate = tuple(int(i) for i in np.flatnonzero(flexible & np.any(det <= 0, axis=1)))
 
     # 2. The condensed stiffness, in scaled node coordinates.
-    K = np.zeros((3 * n_nodes, 3 * n_nodes))
-    solves = {}
+    seg = np.flatnonzero(flexible)
+    phi = jac[seg, -1]
+    A, C, D = phi[:, KIN, KIN], phi[:, WRENCH, KIN], phi[:, WRENCH, WRENCH]
+    Binv = np.linalg.inv(phi[:, KIN, WRENCH])
+    BA = Binv @ A
+    Ke = np.empty((seg.size, 6, 6))
+    Ke[:, :3, :3], Ke[:, :3, 3:] = BA, -Binv
+    Ke[:, 3:, :3], Ke[:, 3:, 3:] = C - D @ BA, D @ Binv
     scale = np.concatenate([kin_scale, kin_scale])
-    for i in np.flatnonzero(flexible):
-        phi = jac[i, -1]
-        A, C, D = phi[KIN, KIN], phi[WRENCH, KIN], phi[WRENCH, WRENCH]
-        Binv = np.linalg.inv(phi[KIN, WRENCH])
-        solves[int(i)] = (A, Binv)
-        Ke = np.block([[Binv @ A, -Binv], [C - D @ Binv @ A, D @ Binv]])
-        dofs = np.concatenate([3 * start_node[i] + np.arange(3), 3 * end_node[i] + np.arange(3)])
-        K[np.ix_(dofs, dofs)] += Ke * scale[:, None] * scale[None, :] / unit
+    Ke *= scale[:, None] * scale[None, :] / unit
+    three = np.arange(3)
+    dofs = np.concatenate(
+        [3 * start_node[seg, None] + three, 3 * end_node[seg, None] + three], axis=1
+    )
+    K = np.zeros((3 * n_nodes, 3 * n_nodes))
+    np.add.at(K, (dofs[:, :, None], dofs[:, None, :]), Ke)
     free = np.flatnonzero(~fixed.reshape(-1))
     Kf = K[np.ix_(free, free)]
     norm = max(np.linalg.norm(Kf), np.finfo(float).tiny)
     asymmetry = float(np.linalg.norm(Kf - Kf.T) / norm)
-    values, vectors = np.linalg.eigh(0.5 * (Kf + Kf.T))
-    k = min(n_eigenvalues, values.size)
+    k = min(n_eigenvalues, free.size)
+    values, vectors = np.zeros(0), np.zeros((free.size, 0))
+    if k:  # (the smallest k only: a partial decomposition)
+        values, vectors = scipy.linalg.eigh(
+            0.5 * (Kf + Kf.T), subset_by_index=(0, k - 1), driver="evx"
+        )
     V = np.zeros((k, 3 * n_nodes))
-    V[:, free] = (vectors[:, :k] / np.max(np.abs(vectors[:, :k]), axis=0)).T
+    V[:, free] = (vectors / np.max(np.abs(vectors), axis=0)).T
     modes = V.reshape(k, -1, 3) * kin_scale
 
     # The unknowns' change along each mode: each flexible segment's start wrench from its
     # two ends' displacements (0 on the rest, whose wrench the kinematics do not fix).
     dY = np.zeros((k, S, 6))
     dY[:, :, KIN] = modes[:, start_node]
-    for i, (A, Binv) in solves.items():
-        dk = modes[:, end_node[i]] - modes[:, start_node[i]] @ A.T
-        dY[:, i, WRENCH] = dk @ Binv.T
+    dk = modes[:, end_node[seg]] - np.einsum("sij,ksj->ksi", A, modes[:, start_node[seg]])
+    dY[:, seg, WRENCH] = np.einsum("sij,ksj->ksi", Binv, dk)
     min_eig = float(values[0]) if values.size else np.inf
     return Stability(
         stable=bool(min_eig > 0 and not conjugate),
         min_eigenvalue=min_eig,
-        eigenvalues=values[:k].copy(),
+        eigenvalues=values,
         conjugate_segments=conjugate,
         asymmetry=asymmetry,
         modes=modes,
