@@ -1,4 +1,4 @@
-"""Grasp benchmarks (issue: grasping): one full grasp solve (closing onto the object and
+"""Grasp benchmarks: one full grasp solve (closing onto the object and
 beyond), the same grasp by the actuator force it needed, and one release-force trace, on
 the default finger (Finger-1) with an 18 mm cylinder, planar, pinned to one core. Compile
 time is reported apart; steady times are medians of repeats. As an in-run baseline the
@@ -77,6 +77,16 @@ def main():
             "grasp_solves": by_force.steps,
             "closing_mm": float(by_force.closing),
         }
+        # The stability test's share: the same grasp without it.
+        fr.grasp(f, 6.0, check_stability=False)
+        case["without_stability_test"] = {
+            "grasp_s": median_time(
+                lambda f=f: fr.grasp(f, 6.0, check_stability=False), repeats=repeats, min_total=0
+            )[0],
+            "stability_s": median_time(lambda g=g: fr.stability(g), repeats=repeats, min_total=0)[
+                0
+            ],
+        }
         # In-run baseline: the same grasp and release trace without chord steps.
         g_n = fr.grasp(f, 6.0, options=NEWTON)
         fr.release_force(g_n, step=2.0, options=NEWTON)
@@ -102,6 +112,11 @@ def main():
             f"{'':9s} by actuator force {ag['actuator_force_N']:.3f} N: grasp "
             f"{1e3 * ag['grasp_s']:8.1f} ms ({ag['grasp_solves']} solves, closing "
             f"{ag['closing_mm']:.4f} mm)"
+        )
+        ws = case["without_stability_test"]
+        print(
+            f"{'':9s} without the stability test: grasp {1e3 * ws['grasp_s']:8.1f} ms; "
+            f"the test alone {1e3 * ws['stability_s']:.1f} ms"
         )
         nw = case["newton_only"]
         print(
