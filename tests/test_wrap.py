@@ -50,8 +50,8 @@ def _gap(sol, radius):
 
 
 def test_continuation_wraps_a_cylinder_as_the_elastica():
-    """P = 0.5 N wraps 64 degrees of a 25 mm cylinder (the continuation used to stop
-    where contact began, above about 50 degrees of wrap). Against the rigid,
+    """P = 0.5 N wraps 64 degrees of a 25 mm cylinder, solved cold: the continuation
+    crosses the corner of its path where contact begins. Against the rigid,
     inextensible closed form:
 
     * on the wrapped arc the moment is EI / Rc (the curvature 1 / Rc): to 1 %, the
