@@ -31,13 +31,7 @@ from ._finger import BACK, FRONT, Finger, FingerError
 from ._objects import HalfPlane, _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
-from ._solve import (
-    SolverOptions,
-    _direct_core,
-    prepare,
-    resolve_mode,
-    undeformed_unknowns,
-)
+from ._solve import SolverOptions, _direct_core, prepare, resolve_mode, undeformed_unknowns
 from ._stability import CriticalPoint, Stability, stability_of, stable_neighbours
 from ._types import as_float
 
@@ -327,7 +321,7 @@ def _shape_key(topo):
     return (topo.mode, topo.base_kinds, topo.n_crossbeams, topo.tapered, contact)
 
 
-MAX_CRITICAL = 8  # critical points a stepper goes past (each costs up to 8 solves)
+MAX_CRITICAL = 8  # critical points a stepper goes past (each costs up to 12 solves)
 
 
 class _Stepper:
@@ -366,7 +360,6 @@ class _Stepper:
         self.sign = 0.0
         self.prev = None  # (t, unknowns) of the point before the last one `follow` accepted
         self.failure = RESULTS.nonlinear_divergence  # the result of the last failed solve
-        self.rejected = None  # the last solve's equilibrium when rejected for det J's sign
         self.critical = []  # CriticalPoints the paths passed
         self.direction = None  # the objects' closing direction, to report normal forces
 
@@ -389,13 +382,10 @@ class _Stepper:
             ok = bool(ok)
         if not ok and warm:
             sol, ok, sign = self._through_softer_support(finger, init, ref, (sol, ok, sign))
-        self.rejected = None
         if ok:
             self.sign = float(sign)
         else:
             self.failure = sol.result
-            if bool(sol.result == RESULTS.branch_changed):
-                self.rejected = sol
         return sol, ok
 
     def stability(self, finger, sol):
@@ -406,7 +396,8 @@ class _Stepper:
         parameter t) that Newton reaches from the equilibrium `seed` displaced along its
         softest mode (`stab`: the seed's Stability), the one nearest the last stable point
         `sol_last` (at t_last) first. Records a CriticalPoint; returns the
-        [(solution, Stability)] found."""
+        [(solution, Stability)] found. (Each is accepted with the path's sign of det J,
+        which the stepper keeps.)"""
         found = stable_neighbours(
             lambda guess: self.solve(finger, guess),
             lambda s: self.stability(finger, s),
@@ -417,9 +408,6 @@ class _Stepper:
         found.sort(key=lambda e: float(np.max(np.abs(np.asarray(e[0].unknowns) - last))))
         forces = tuple(self.normal_force(finger, s) for s, _ in found)
         self.critical.append(CriticalPoint((t_last, t), stab.min_eigenvalue, bool(found), forces))
-        if found:
-            self.sign = 0.0  # the new branch's sign: that of its equilibrium, solved again
-            self.solve(finger, found[0][0].unknowns)
         return found
 
     def past_critical(self, at, t, sol, rejected, t_next):
@@ -495,8 +483,8 @@ class _Stepper:
                 if stop is not None and stop(t, sol):
                     break
             else:
-                if self.rejected is not None:
-                    rejected = (t_try, self.rejected)
+                if bool(trial.result == RESULTS.branch_changed):
+                    rejected = (t_try, trial)
                 h = 0.5 * h
                 if h < min_step:
                     # The branch ends (a fold) or loses stability (a bifurcation) within

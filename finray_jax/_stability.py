@@ -181,11 +181,11 @@ def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -
             f"stability is computed for planar fingers (mode='planar'), got mode={topo.mode!r}"
         )
     out = _at_equilibrium(topo, integrator, finger, jnp.asarray(Y), jnp.asarray(lam, float))
-    jac, y_scale, length, rigid, L, F = (np.asarray(x) for x in out)
+    jac, y_scale, length, rigid = (np.asarray(x) for x in out[:4])
+    L, F = (float(x) for x in out[4:])
     jac = _full_jacobian(jac, topo.model.translation_free)
-    nodes = _Nodes(topo, float(L), length, rigid)
+    nodes = _Nodes(topo, L, length, rigid)
     S = topo.n_segments
-    L, F = float(L), float(F)
     out = condensed_stability(
         jac,
         nodes.of[:S],
