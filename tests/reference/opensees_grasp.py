@@ -1,7 +1,16 @@
 """Independent reference for grasping: Finger-1 closing on a rigid cylinder, with OpenSees.
 
-Run:  python tests/reference/opensees_grasp.py --out tests/data/grasp_opensees.json
-      (--quick: only the two coarsest meshes and no penalty study, for a reproducibility test)
+Run:  python tests/reference/opensees_grasp.py --penalty-from-finray \
+          --out tests/data/grasp_opensees.json
+      (--quick: only the two coarsest meshes and no penalty study, for a reproducibility
+      test; --penalty-from-finray: run finray_jax's grasps for the penalty stiffnesses
+      instead of taking the PENALTY table, and store what they report; --cases: a subset)
+
+Cases: "original" (examples/grasp_finger1.toml) and "modified"
+(grasp_finger1_modified.toml) at finray_jax's default penetration limit
+(contact.max_penetration = 0.02 of the beams' thickness), and "modified_tight", the
+modified adaptor with contact.max_penetration = 0.002 (the support's limit follows it:
+max_support_penetration is None), each at closings 2, 4 and 6 mm.
 
 Model (units mm, N, MPa; the conventions of opensees_ref_a.py)
 ---------------------------------------------------------------
@@ -14,16 +23,24 @@ Model (units mm, N, MPa; the conventions of opensees_ref_a.py)
   one shared tip node; seven horizontal crossbeams at z = 15, 30, ..., 105 sharing the main
   beams' nodes (rigid joints, centreline to centreline).  Thickness 3.0 (front, back) and
   2.0 (crossbeams), depth 20, E = 12, nu = 0.45.  No distributed load: only the object.
-* Mesh: uniform elements of size h on the front beam (nodes at every 15 mm); the back
-  beam is cut at the crossbeams, at l_c = 20 and at l_s = 60 and each piece split into
-  elements no longer than h L_back / 120; crossbeam i has round((40 - 5 i) / h) elements.
-  Sizes h = 1.25 ... 0.0390625 (six, halving; 10 k elements on the finest); the finest
-  gives the stored values, and the last two a Richardson estimate of each output's mesh
-  error, |f_h - f_2h| / 3 (second order, which the sequence shows from h = 0.3125 on; the
-  observed order of the last three meshes is stored with it).  The fine meshes are needed
-  by the contact zones, not by the beams: the cylinder's pressure spans about 2.4 mm of the
-  front beam, with a kink where crossbeam 4 joins it (z = 60), and the modified adaptor's
-  support carries its load on the last millimetre before l_s, rising to its end.
+* Mesh: elements of size h on the front beam, and h FRONT_REFINE = h / 8 over
+  FRONT_ZONE = 57.5 <= z <= 62.5, where the cylinder presses (nodes at every 15 mm and at
+  the zone's ends); the back beam is cut at the crossbeams, at l_c = 20 and at l_s = 60,
+  each piece split into elements no longer than h L_back / 120, and for the modified
+  adaptor no longer than EDGE_REFINE = 1/32 of that within EDGE_ZONE = 0.5 mm of l_s;
+  crossbeam i has round((40 - 5 i) / h) elements.  Sizes h = 1.25 ... 0.0390625 (six,
+  halving; 11 k elements on the finest); the finest gives the stored values, and the
+  last two a Richardson estimate of each output's mesh error, |f_h - f_2h| / 3 (second
+  order; the observed order of the last three meshes is stored with it).  The fine meshes
+  are needed by the contact zones, not by the beams.  The cylinder's pressure spans 1 to
+  2.5 mm of the front beam ("front_contact_z_mm"), with a kink where crossbeam 4 joins it
+  (z = 60): without the front zone the tight case's tip displacement and clamp moment
+  converge as slowly as h^0.2.  The support's stiff penalty carries nearly all its
+  load on the back beam's last 0.02 to 0.25 mm before l_s (the shorter, the stiffer k_s):
+  the support's end is a corner the beam bends over, sheared (a concentrated force kinks a
+  Timoshenko beam's centreline by F / (k G A)), so the penetration there rises at a slope
+  of 0.2 to 0.4; without the back zone the modified outputs change irregularly by up to
+  1 % between the finest meshes.
 * Adaptors.  original: both bases fully fixed.  modified: the front base pinned (x, z
   fixed, rotation free); every back-beam node with s <= l_c = 20 fully fixed (so crossbeam
   1, which lands at s = 15.81, attaches to the adaptor); a rigid unilateral support behind
@@ -44,26 +61,37 @@ Model (units mm, N, MPa; the conventions of opensees_ref_a.py)
   other node of both main beams stays clear of the cylinder.
 * Penalty: finray_jax's C1 law, force per unit (undeformed) length q = k ramp(-g) with
   ramp(x) = 0 (x <= 0), x^2 / (2 delta) (0 < x < delta), x - delta / 2 (x >= delta),
-  lumped at the nodes with their tributary length (h; half at the ends of the supported
-  range).  Each gap element's material is ElasticMultiLinear (nonlinear elastic, path
-  independent) through 513 points of the quadratic part plus the exact linear asymptote;
-  its largest departure from the C1 law is k delta / (8 x 512^2) per unit length (5e-7 of
-  k delta).  The script recomputes every gap element's force from the deformed geometry
-  with the exact law and stores the largest difference ("penalty_law_max_error_N", below
-  1e-6 N).  k and delta are the finray_jax grasp's (examples/grasp_finger1*.toml):
-  delta = 0.02 x 3.0 / 2 = 0.03 mm, and k = E depth / t_front = 80 N/mm^2 unless
-  finray_jax's `grasp` stiffened it to keep the penetration below 0.06 mm (the modified
-  adaptor: k = g.stiffness at each closing, stored in PENALTY).  Frictionless.
-* Penalty study (information only; the comparison is at the same k): k x 4, x 16, x 64
-  with delta / 4, / 16, / 64 (the whole penetration law scaled by 1 / m, so the outputs
-  approach the rigid-contact limit linearly in 1 / k), on the h = 0.078125 mesh, and the
-  limit extrapolated from the two stiffest runs.
-* Shear-rigid check: the modified adaptor again with shear_k = 100 on the two finest
+  lumped at the nodes with their tributary length (half of each adjacent element, within
+  the supported range).  The cylinder has its (k, delta), the support its own (k_s,
+  delta_s), as in finray_jax (Contact.stiffness / support_stiffness):
+    delta = max_penetration x t_front / 2, delta_s = max_support_penetration x t_back / 2
+  (0.03 mm for original and modified, 0.003 mm for modified_tight), and (k, k_s) =
+  (g.stiffness, g.support_stiffness) of finray_jax's default grasp(finger, closing=d) of
+  the case (stored in PENALTY): k starts at E depth / t_front = 80 N/mm^2, k_s at k, and
+  `grasp` stiffens each until the penetration it reads at its solution points stays below
+  2 delta (delta_s); those grasps' reports are stored ("finray_grasp").  The original
+  adaptor has no support and keeps k = 80.  (At the tight case's k_s the resolved support
+  penetration here, "max_support_penetration_nodes_mm", is 0.0050, 0.0066 and 0.026 mm at
+  2, 4, 6 mm against its 0.006 mm limit, where finray_jax's 16-step grasp read 0, 7e-5 and
+  0.0029 mm: its support contact is shorter than an integration step.) Each gap element's
+  material is ElasticMultiLinear (nonlinear elastic, path independent) through n + 1
+  points of the quadratic part plus the exact linear asymptote; its largest departure from
+  the C1 law is k delta / (8 n^2) per unit length, and n (a power of 2, at least 512, up
+  to 16384 for the tight support) keeps that below 1e-6 N/mm.  The script recomputes every
+  gap element's force from the deformed geometry with the exact law and stores the largest
+  difference ("penalty_law_max_error_N", below 1e-6 N).  Frictionless.
+* Penalty study (information only; the comparison is at the same k and k_s), original and
+  modified: k and k_s x 4, x 16, x 64 with delta and delta_s / 4, / 16, / 64 (the whole
+  penetration law scaled by 1 / m, so the outputs approach the rigid-contact limit
+  linearly in 1 / k), on the h = 0.078125 mesh, and the limit extrapolated from the two
+  stiffest runs.
+* Shear-rigid check: the modified case again with shear_k = 100 on the two finest
   meshes ("modified_shear_rigid"; see the comment in main).
 * Solution: static, load control of the cylinder's prescribed displacement in steps of at
-  most 0.25 mm (a step that fails is halved, down to 1/64 of it), full Newton,
-  NormDispIncr 1e-10, UmfPack.  The equilibrium is elastic and frictionless, so the path
-  does not matter; each closing of the modified adaptor is its own run (its own k).
+  most 0.25 mm (a step that fails is halved, down to 1/64 of it; the tight case halves a
+  few), full Newton, NormDispIncr 1e-10, UmfPack.  The equilibrium is elastic and
+  frictionless, so the path does not matter; each closing of the modified cases is its
+  own run (its own k and k_s).
 
 Output conventions (JSON)
 -------------------------
@@ -75,6 +103,10 @@ Output conventions (JSON)
   "back" is the clamp's total over every fixed back node (s <= l_c), crossbeam 1's
   attachment included.
 * "support_force": (Fx, Fz) the support exerts on the back beam.
+* "max_penetration_nodes_mm", "max_support_penetration_nodes_mm": the largest penetration
+  of a node into the cylinder and into the support; "front_contact_z_mm": the undeformed
+  z range of the front-beam nodes the cylinder presses.
+* "k", "k_s", "delta", "delta_s": the case's penalty law (also "model"/"penalty").
 * "mesh_error": the Richardson estimate of every output above (same keys).
 """
 
@@ -108,20 +140,43 @@ SUPPORT = 60.0  # l_s
 E_BACK = np.array([-W_BASE, H_FINGER]) / L_BACK  # back beam's unit tangent
 N_SUPPORT = -np.array([H_FINGER, W_BASE]) / L_BACK  # support normal (forward)
 CLOSINGS = (2.0, 4.0, 6.0)
-DELTA = 0.02 * T_MAIN / 2.0
-# finray_jax's penalty stiffness k (N/mm^2) of each grasp (GraspSolution.stiffness of
-# grasp(finger, closing=d) on examples/grasp_finger1.toml / grasp_finger1_modified.toml;
-# --penalty-from-finray recomputes them)
-PENALTY = {
-    ("original", 2.0): 80.0,
-    ("original", 4.0): 80.0,
-    ("original", 6.0): 80.0,
-    ("modified", 2.0): 148.97354787789178,
-    ("modified", 4.0): 264.8399562973533,
-    ("modified", 6.0): 324.2284659980695,
+# The cases: adaptor, example file and contact.max_penetration (the fraction of the main
+# beams' thickness 3.0 both penetration limits take: max_support_penetration is None)
+CASES = {
+    "original": ("original", "grasp_finger1.toml", 0.02),
+    "modified": ("modified", "grasp_finger1_modified.toml", 0.02),
+    "modified_tight": ("modified", "grasp_finger1_modified.toml", 0.002),
 }
-N_PIECES = 512  # linear pieces of the quadratic part of the penalty law
+# finray_jax's penalty stiffnesses (N/mm^2) of each grasp: (k, k_s) = (GraspSolution.
+# stiffness, .support_stiffness) of grasp(finger, closing=d) on the case's example file
+# with its max_penetration (--penalty-from-finray recomputes them).  The original adaptor
+# has no support (its k_s is unused).
+PENALTY = {
+    ("original", 2.0): (80.0, 80.0),
+    ("original", 4.0): (80.0, 80.0),
+    ("original", 6.0): (80.0, 80.0),
+    ("modified", 2.0): (148.97354704981697, 3383.598133652466),
+    ("modified", 4.0): (336.59506516035657, 7301.559995624385),
+    ("modified", 6.0): (417.7827246290517, 10076.541101481496),
+    ("modified_tight", 2.0): (4478.690964744875, 327680.0),
+    ("modified_tight", 4.0): (10466.319190944374, 327680.0),
+    ("modified_tight", 6.0): (17043.338646176548, 20480.0),
+}
+
+
+def smoothings(case):
+    """(delta, delta_s) of a case: max_penetration x thickness / 2 (front; back)."""
+    frac = CASES[case][2]
+    return frac * T_MAIN / 2.0, frac * T_MAIN / 2.0
+
+
+N_PIECES = 512  # the fewest linear pieces of the quadratic part of the penalty law
+LAW_ERROR = 1e-6  # N/mm: the largest departure of the piecewise-linear law from ramp
 WINDOW = 25.0  # front nodes with |z - 60| <= WINDOW get a gap element
+EDGE_ZONE = 0.5  # mm each side of l_s where the back beam's elements are refined ...
+EDGE_REFINE = 1 / 32  # ... to this fraction of their size elsewhere (modified adaptor)
+FRONT_ZONE = (57.5, 62.5)  # the front beam's range (z) whose elements are refined ...
+FRONT_REFINE = 1 / 8  # ... to this fraction of h (the cylinder's contact)
 MAX_STEP = 0.25
 SHEAR_RIGID = 100.0  # Timoshenko coefficient of the shear-rigid check
 
@@ -132,9 +187,18 @@ def ramp(x, delta):
     return quad * quad / (2.0 * delta) + np.maximum(x - delta, 0.0)
 
 
-def penalty_points(delta):
-    """Penetrations x and ramp(x) defining the piecewise-linear law (exact beyond delta)."""
-    x = np.concatenate([[-1.0], np.linspace(0.0, delta, N_PIECES + 1), [delta + 10.0]])
+def n_pieces(k, delta):
+    """Linear pieces of the quadratic part: at least N_PIECES, a power of 2, enough that
+    k times the interpolation error delta / (8 n^2) stays below LAW_ERROR."""
+    need = math.sqrt(k * delta / (8.0 * LAW_ERROR))
+    return max(N_PIECES, 2 ** math.ceil(math.log2(need)))
+
+
+def penalty_points(k, delta):
+    """Penetrations x and ramp(x) defining the piecewise-linear law of stiffness k (exact
+    beyond delta)."""
+    n = n_pieces(k, delta)
+    x = np.concatenate([[-1.0], np.linspace(0.0, delta, n + 1), [delta + 10.0]])
     return x, ramp(x, delta)
 
 
@@ -142,11 +206,12 @@ def penalty_points(delta):
 class GraspModel:
     """Finger-1 on one adaptor, the cylinder's gap elements and the support."""
 
-    def __init__(self, h, adaptor, k, delta, shear_k=5 / 6):
+    def __init__(self, h, adaptor, k, delta, k_s, delta_s, shear_k=5 / 6):
         n = round(H_FINGER / h)
         if abs(n * h - H_FINGER) > 1e-9 or abs(15.0 / h - round(15.0 / h)) > 1e-9:
             raise ValueError(f"element size {h} must divide 15")
         self.h, self.adaptor, self.k, self.delta = h, adaptor, k, delta
+        self.k_s, self.delta_s = k_s, delta_s
         ref_a.setup_model()
         self._tag = 0
         self._etag = 0
@@ -156,16 +221,26 @@ class GraspModel:
         bi_cross = ref_a.define_section(3, T_CROSS, shear_k)
         ops.geomTransf("Corotational", 1)
         # front beam
-        self.front_s = np.arange(n + 1) * h
+        cuts = sorted(set([0.0, H_FINGER, *FRONT_ZONE] + list(Z_CROSS)))
+        s_front = [0.0]
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            fine = FRONT_ZONE[0] <= 0.5 * (a + b) <= FRONT_ZONE[1]
+            m = max(1, round((b - a) / (h * (FRONT_REFINE if fine else 1.0))))
+            s_front += [a + (b - a) * j / m for j in range(1, m + 1)]
+        self.front_s = np.array(s_front)
         self.front = [self._node(0.0, s) for s in self.front_s]
         self.tip = self.front[-1]
         # back beam: cut at the crossbeams, l_c and l_s; the tip node is the front's
         b_cross = [z * L_BACK / H_FINGER for z in Z_CROSS]
-        cuts = sorted(set([0.0, CLAMP, SUPPORT, L_BACK] + b_cross))
+        cuts = [0.0, CLAMP, SUPPORT, L_BACK] + b_cross
+        if adaptor == "modified":
+            cuts += [SUPPORT - EDGE_ZONE, SUPPORT + EDGE_ZONE]
+        cuts = sorted(set(cuts))
         hb = h * L_BACK / H_FINGER
         s_back = [0.0]
         for a, b in zip(cuts[:-1], cuts[1:]):
-            m = max(1, math.ceil((b - a) / hb - 1e-9))
+            edge = adaptor == "modified" and abs(0.5 * (a + b) - SUPPORT) < EDGE_ZONE
+            m = max(1, math.ceil((b - a) / (hb * (EDGE_REFINE if edge else 1.0)) - 1e-9))
             s_back += [a + (b - a) * j / m for j in range(1, m + 1)]
         self.back_s = np.array(s_back)
         self.back = []
@@ -177,7 +252,7 @@ class GraspModel:
         self._chain(self.back, bi_back)
         self.n_beam_elements = self._etag
         for i, z in enumerate(Z_CROSS):
-            a = self.front[round(z / h)]
+            a = self.front[int(np.argmin(np.abs(self.front_s - z)))]
             jb = int(np.argmin(np.abs(self.back_s - b_cross[i])))
             assert abs(self.back_s[jb] - b_cross[i]) < 1e-9
             b = self.back[jb]
@@ -204,9 +279,13 @@ class GraspModel:
         self.centre = self._node(*CENTRE)
         ops.fix(self.centre, 0, 1, 1)
         self.gaps = []  # (element, beam node, tributary length)
-        for j, (nd, s) in enumerate(zip(self.front, self.front_s)):
-            if 0 < j < n and abs(s - CENTRE[1]) <= WINDOW:
-                self.gaps.append((self._gap(nd, h), nd, h))
+        fs = self.front_s
+        self.gap_s = []  # undeformed z of each gap element's node
+        for j, (nd, s) in enumerate(zip(self.front, fs)):
+            if 0 < j < len(fs) - 1 and abs(s - CENTRE[1]) <= WINDOW:
+                trib = 0.5 * (fs[j + 1] - fs[j - 1])
+                self.gaps.append((self._gap(nd, trib), nd, trib))
+                self.gap_s.append(float(s))
         # the support
         self.support = []
         if adaptor == "modified":
@@ -247,7 +326,7 @@ class GraspModel:
         """corotTruss centre -> nd, axial force -k trib ramp(R + t/2 - L) (compression)."""
         x0, z0 = ops.nodeCoord(nd)
         length0 = math.hypot(x0 - CENTRE[0], z0 - CENTRE[1])
-        pen, r = penalty_points(self.delta)
+        pen, r = penalty_points(self.k, self.delta)
         strain = (RADIUS + T_MAIN / 2 - pen) / length0 - 1.0
         mat = self._material(strain, -self.k * trib * r)
         self._etag += 1
@@ -256,12 +335,13 @@ class GraspModel:
 
     def _support(self, nd, trib):
         """zeroLength from a fixed node at nd's place, along the support normal: its
-        deformation is the gap g = u . n, force -k trib ramp(-g) (compression)."""
+        deformation is the gap g = u . n, force -k_s trib ramp(-g) with the support's
+        smoothing delta_s (compression)."""
         x0, z0 = ops.nodeCoord(nd)
         fixed = self._node(x0, z0)
         ops.fix(fixed, 1, 1, 1)
-        pen, r = penalty_points(self.delta)
-        mat = self._material(-pen, -self.k * trib * r)
+        pen, r = penalty_points(self.k_s, self.delta_s)
+        mat = self._material(-pen, -self.k_s * trib * r)
         self._etag += 1
         nx, nz = N_SUPPORT
         ops.element(
@@ -292,11 +372,13 @@ class GraspModel:
                 u = (p - c) / dist
                 law_err = max(law_err, float(np.linalg.norm(f - exact * u)))
         support = np.zeros(2)
+        support_pen = 0.0
         for e, nd, trib in self.support:
             f = -np.array(ops.eleForce(e)[3:5])
             support += f
             gap = float((self._position(nd) - ops.nodeCoord(nd)) @ N_SUPPORT)
-            exact = self.k * trib * float(ramp(-gap, self.delta))
+            support_pen = max(support_pen, -gap)
+            exact = self.k_s * trib * float(ramp(-gap, self.delta_s))
             law_err = max(law_err, float(np.linalg.norm(f - exact * N_SUPPORT)))
         # every node without a gap element stays clear of the cylinder
         touching = {nd for _, nd, _ in self.gaps}
@@ -344,6 +426,11 @@ class GraspModel:
                 for _, nd, _ in self.gaps
             ]
         )
+        out["max_support_penetration_nodes_mm"] = support_pen
+        pressed = [
+            s for (e, _, _), s in zip(self.gaps, self.gap_s) if ops.eleForce(e)[3:5] != [0, 0]
+        ]
+        out["front_contact_z_mm"] = [min(pressed), max(pressed)] if pressed else None
         return out
 
 
@@ -392,24 +479,26 @@ def close(model, targets):
     return out, steps
 
 
-def solve_adaptor(h, adaptor, scale=1.0, shear_k=5 / 6):
-    """Results of one adaptor at every closing on one mesh.  scale multiplies k and divides
-    delta (penalty study); shear_k: the sections' Timoshenko coefficient."""
+def solve_case(h, case, scale=1.0, shear_k=5 / 6):
+    """Results of one case at every closing on one mesh.  scale multiplies k and k_s and
+    divides delta and delta_s (penalty study); shear_k: the sections' Timoshenko
+    coefficient.  Closings with the same penalty share one run (the original adaptor's);
+    every other closing is its own run from the open finger."""
+    adaptor = CASES[case][0]
+    delta, delta_s = smoothings(case)
     res = {}
     t0 = time.time()
-    if adaptor == "original":
-        k = {PENALTY[("original", d)] for d in CLOSINGS}
-        assert len(k) == 1
-        model = GraspModel(h, adaptor, k.pop() * scale, DELTA / scale, shear_k)
-        out, steps = close(model, CLOSINGS)
+    runs = {}
+    for d in CLOSINGS:
+        runs.setdefault(PENALTY[(case, d)], []).append(d)
+    steps = 0
+    for (k, k_s), targets in runs.items():
+        model = GraspModel(
+            h, adaptor, k * scale, delta / scale, k_s * scale, delta_s / scale, shear_k
+        )
+        out, st = close(model, targets)
         res.update(out)
-    else:
-        steps = 0
-        for d in CLOSINGS:
-            model = GraspModel(h, adaptor, PENALTY[(adaptor, d)] * scale, DELTA / scale, shear_k)
-            out, st = close(model, [d])
-            res.update(out)
-            steps += st
+        steps += st
     info = {
         "h": h,
         "n_beam_elements": model.n_beam_elements,
@@ -470,20 +559,38 @@ def richardson(seq):
 
 
 def penalty_from_finray():
-    """k of finray_jax's grasps of the two example files (needs finray_jax)."""
+    """(k, k_s) of finray_jax's default grasp of every case and closing (needs finray_jax),
+    and what that grasp reports: converged, and its penetrations (mm) into the cylinder and
+    the support with their limits.  Raises if a grasp failed or exceeds a limit."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
     import finray_jax as fr
     from finray_jax.io import load_finger
 
     root = pathlib.Path(__file__).resolve().parents[2] / "examples"
-    out = {}
-    for adaptor, name in (
-        ("original", "grasp_finger1.toml"),
-        ("modified", "grasp_finger1_modified.toml"),
-    ):
+    penalty, checks = {}, {}
+    for case, (_, name, frac) in CASES.items():
         finger, _ = load_finger(root / name)
+        finger = eqx.tree_at(lambda f: f.contact.max_penetration, finger, jnp.asarray(frac))
         for d in CLOSINGS:
-            out[(adaptor, d)] = float(fr.grasp(finger, closing=d).stiffness)
-    return out
+            g = fr.grasp(finger, closing=d)
+            c = g.contact
+            limit = frac * T_MAIN  # both limits: the same fraction, both beams 3.0 thick
+            check = {
+                "converged": g.converged,
+                "max_penetration_mm": float(c.max_penetration),
+                "support_penetration_mm": float(c.support_penetration),
+                "limit_mm": limit,
+                "warnings": g.penetration_warnings(),
+            }
+            ok = check["converged"] and not check["warnings"]
+            ok = ok and max(check["max_penetration_mm"], check["support_penetration_mm"]) <= limit
+            if not ok:
+                raise RuntimeError(f"finray_jax's grasp of {case} at {d} mm: {check}")
+            penalty[(case, d)] = (float(g.stiffness), float(g.support_stiffness))
+            checks[f"{case}_{d:g}"] = check
+    return penalty, checks
 
 
 # ----------------------------------------------------------------------------- driver
@@ -495,12 +602,19 @@ def main(argv=None):
     ap.add_argument("--penalty-h", type=float, default=0.078125)
     ap.add_argument("--penalty-scales", default="4,16,64")
     ap.add_argument("--penalty-from-finray", action="store_true")
+    ap.add_argument("--cases", default=",".join(CASES))
     args = ap.parse_args(argv)
     sizes = sorted((float(v) for v in args.sizes.split(",")), reverse=True)
+    cases = args.cases.split(",")
     if args.quick:
         sizes = sizes[:2]
+    finray_checks = None
     if args.penalty_from_finray:
-        PENALTY.update(penalty_from_finray())
+        new, finray_checks = penalty_from_finray()
+        for key, value in new.items():
+            if value != PENALTY[key]:
+                print(f"PENALTY{key}: finray_jax gives {value}, the table {PENALTY[key]}")
+        PENALTY.update(new)
         print("penalty from finray_jax:", PENALTY, flush=True)
     t_start = time.time()
     data = {
@@ -537,9 +651,27 @@ def main(argv=None):
             "support_length": SUPPORT,
             "support_normal": N_SUPPORT.tolist(),
             "penalty_law": "q = k ramp(-g), ramp C1 with smoothing delta; ElasticMultiLinear "
-            f"with {N_PIECES} pieces on [0, delta] and the exact asymptote",
-            "delta": DELTA,
-            "penalty_k": {f"{a}_{d:g}": k for (a, d), k in PENALTY.items()},
+            "with n pieces on [0, delta] (n: a power of 2, at least "
+            f"{N_PIECES}, with k delta / (8 n^2) <= {LAW_ERROR} N/mm) and the exact asymptote",
+            "cases": {
+                case: {"adaptor": adaptor, "example": name, "max_penetration": frac}
+                for case, (adaptor, name, frac) in CASES.items()
+                if case in cases
+            },
+            "penalty": {
+                f"{c}_{d:g}": dict(zip(("k", "k_s", "delta", "delta_s"), k + smoothings(c)))
+                for (c, d), k in PENALTY.items()
+                if c in cases
+            },
+            "penalty_source": "finray_jax grasp, recomputed by this run"
+            if finray_checks
+            else "the script's PENALTY table (finray_jax's grasp values)",
+            "refined": {
+                "front_z": list(FRONT_ZONE),
+                "front_fraction": FRONT_REFINE,
+                "back_around_support_end_mm": EDGE_ZONE,
+                "back_fraction": EDGE_REFINE,
+            },
             "element": "forceBeamColumn, Lobatto 3 points, geomTransf Corotational; "
             "corotTruss (A = 1) gap elements; zeroLength support elements",
             "solver": "Newton, NormDispIncr 1e-10, UmfPack, load control of the prescribed "
@@ -550,48 +682,51 @@ def main(argv=None):
         "element_size": sizes[-1],
         "quick": args.quick,
     }
-    for adaptor in ("original", "modified"):
+    if finray_checks:
+        data["finray_grasp"] = finray_checks
+    for name in cases:
         per_h, infos = [], []
         for h in sizes:
-            res, info = solve_adaptor(h, adaptor)
+            res, info = solve_case(h, name)
             per_h.append(res)
             infos.append(info)
             for d in CLOSINGS:
                 r = res[d]
                 print(
-                    f"{adaptor} h={h} d={d}: F=({r['contact_force']['Fx']:.6f},"
+                    f"{name} h={h} d={d}: F=({r['contact_force']['Fx']:.6f},"
                     f" {r['contact_force']['Fz']:.6f}) N={r['normal_force']:.6f}"
                     f" tip=({r['tip']['dx']:.6f}, {r['tip']['dz']:.6f})"
                     f" S=({r['support_force']['Fx']:.6f}, {r['support_force']['Fz']:.6f})"
-                    f" [{info['seconds']:.1f}s]",
+                    f" [{info['seconds']:.1f}s, {info['load_steps']} steps]",
                     flush=True,
                 )
-        block = {"meshes": infos}
+        block = {"max_penetration": CASES[name][2], "meshes": infos}
         for d in CLOSINGS:
             seq = [flat(res[d]) for res in per_h]
             err, order, extra = richardson(seq)
             case = per_h[-1][d]
-            case["k"] = PENALTY[(adaptor, d)]
-            case["delta"] = DELTA
+            case["k"], case["k_s"] = PENALTY[(name, d)]
+            case["delta"], case["delta_s"] = smoothings(name)
             case["element_size"] = sizes[-1]
             case["mesh_error"] = unflat(err)
             case["observed_order"] = unflat(order)
             case["richardson_extrapolated"] = unflat(extra)
             case["convergence"] = [{"h": h, **s} for h, s in zip(sizes, seq)]
             block[f"{d:g}"] = case
-        data[adaptor] = block
+        data[name] = block
 
-    if not args.quick:
+    if not args.quick and cases == list(CASES):
         study = {
             "h": args.penalty_h,
-            "note": "k x m with delta / m; the comparison is at m = 1. rigid_limit: "
+            "note": "k and k_s x m with delta and delta_s / m; the comparison is at m = 1. "
+            "rigid_limit: "
             "Richardson in 1/k from the two stiffest runs",
         }
         scales = [1.0] + [float(v) for v in args.penalty_scales.split(",")]
         for adaptor in ("original", "modified"):
             runs = {}
             for m in scales:
-                res, info = solve_adaptor(args.penalty_h, adaptor, m)
+                res, info = solve_case(args.penalty_h, adaptor, m)
                 runs[m] = res
                 print(f"penalty {adaptor} x{m:g}: {info['seconds']:.1f}s", flush=True)
             for d in CLOSINGS:
@@ -605,6 +740,9 @@ def main(argv=None):
                     "max_penetration_nodes_mm": {
                         f"x{m:g}": runs[m][d]["max_penetration_nodes_mm"] for m in scales
                     },
+                    "max_support_penetration_nodes_mm": {
+                        f"x{m:g}": runs[m][d]["max_support_penetration_nodes_mm"] for m in scales
+                    },
                 }
         data["penalty_study"] = study
         # Nearly shear-rigid sections (shear_k = 100): the modified adaptor's grasps
@@ -614,7 +752,7 @@ def main(argv=None):
         # (shear = tangent component along the section's normal) differ at first order in
         # that strain.  Without shear strain they describe the same rod.
         shear = {"shear_k": SHEAR_RIGID, "mesh_sizes": sizes[-2:]}
-        runs = [solve_adaptor(h, "modified", shear_k=SHEAR_RIGID)[0] for h in sizes[-2:]]
+        runs = [solve_case(h, "modified", shear_k=SHEAR_RIGID)[0] for h in sizes[-2:]]
         for d in CLOSINGS:
             seq = [flat(r[d]) for r in runs]
             err, _, _ = richardson(seq)
