@@ -20,9 +20,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._banded import BandPlan, plan_band
-from ._contact import ContactSpec, beam_gaps, contact_spec, global_params
+from ._contact import (
+    ContactSpec,
+    beam_gaps,
+    contact_spec,
+    global_params,
+    member_smoothing,
+    member_stiffness,
+    members_touch,
+)
 from ._finger import BACK, FRONT, Finger, PointLoad, beam_lengths
-from ._geometry import Geometry, arc_point, section_stiffness
+from ._geometry import Geometry, arc_point, geometry, section_stiffness
+from ._members import MemberPlan, build_plan, node_jumps, slot_kinematics, undeformed_nodes
 from ._rod import TAPER_NODES, rod_model, segment_flow, segment_trajectories
 
 # Event kinds on a beam, in the order used to break ties at equal arc length.
@@ -39,6 +48,7 @@ class Topology:
     events: tuple[tuple[tuple[str, int], ...], ...]  # per beam, ordered (kind, index)
     tapered: bool = False  # a main beam's section varies along s
     contact: ContactSpec | None = None  # objects and support, if any
+    members: MemberPlan | None = None  # contact between the finger's own members
 
     @property
     def n_beams(self):
@@ -176,6 +186,9 @@ def _row_segments(topo: Topology):
     wrench = [{int(a) % S, int(b) % S} for a, b in zip(ix.w_a, ix.w_b)]
     for row, src in zip(ix.cb_rows, ix.cb_src):
         wrench[int(row)].add(int(src) % S)
+    if topo.members is not None:
+        for deps, more in zip(wrench, topo.members.row_dependencies(len(wrench))):
+            deps |= more
     for per_row in (n_force, n_moment):
         for deps in wrench:
             rows += [deps] * per_row
@@ -211,18 +224,70 @@ def build_topology(finger: Finger, mode: str) -> Topology:
     contact = contact_spec(finger)
     if ad.support_length is not None:
         per_beam[BACK].append(("support_end", 0))
+    members = members_touch(finger) and mode == "planar"
+    if members and contact is None:
+        contact = ContactSpec(friction=False)
     events = []
+    pieces = _crossbeam_pieces(finger) if members else 1
     for b, evs in enumerate(per_beam):
         key = lambda e, b=b: (float(event_s(finger, b, *e)), _KIND_ORDER[e[0]], e[1])
         evs = sorted(evs, key=key)
         if contact is not None and b in (FRONT, BACK):
             evs = _subdivide(finger, b, evs, finger.contact.segment_length)
+        elif b >= 2:
+            evs = [("sub", (i, pieces)) for i in range(1, pieces)]
         events.append(tuple(evs))
     tapered = finger.front.tip_thickness is not None or finger.back.tip_thickness is not None
     if contact is not None:
         contact = dataclasses.replace(contact, near=_near_count(finger, events))
-    return Topology(
+    topo = Topology(
         mode, (ad.front_base, ad.back_base), finger.n_crossbeams, tuple(events), tapered, contact
+    )
+    if members:
+        topo = dataclasses.replace(topo, members=_member_plan(topo, finger))
+    return topo
+
+
+def _crossbeam_pieces(finger: Finger) -> int:
+    """Equal pieces per crossbeam for member contact: none longer than twice the
+    segment length (at least 2; equal counts keep the crossbeams' solutions stacked)."""
+    longest = float(np.max(beam_lengths(finger)[2:], initial=0.0))
+    return max(2, int(np.ceil(longest / (2.0 * finger.contact.segment_length) - 1e-9)))
+
+
+def _node_rows(topo: Topology):
+    """The wrench row of every segment's start and end node, and the sign with which a
+    force at that node enters it (-1: none, a main beam's base)."""
+    S, first, last = topo.n_segments, topo.first, topo.last
+    rows = -np.ones((S, 2), dtype=np.int64)
+    signs = np.ones((S, 2))
+    row, cb_row = 0, {}
+    for b, evs in enumerate(topo.events):
+        for k, (kind, j) in enumerate(evs):
+            rows[first[b] + k, 1] = rows[first[b] + k + 1, 0] = row
+            if kind == "cb":
+                cb_row[b, j] = row
+            row += 1
+    for b in (FRONT, BACK):  # the tip's row: n_front + n_back = a force there
+        rows[last[b], 1], signs[last[b], 1] = row, -1.0
+    for j in range(topo.n_crossbeams):
+        rows[first[2 + j], 0] = cb_row[FRONT, j]
+        rows[last[2 + j], 1] = cb_row[BACK, j]
+    return rows, signs
+
+
+def _member_plan(topo: Topology, finger: Finger) -> MemberPlan:
+    table = segment_table(topo, finger, geometry(finger))
+    nodes = undeformed_nodes(table)
+    nodes = type(nodes)(*(np.asarray(x) for x in nodes))
+    rows, signs = _node_rows(topo)
+    return build_plan(
+        np.asarray(topo.seg_beam),
+        (topo.first[FRONT], topo.first[BACK]),
+        nodes,
+        rows,
+        signs,
+        finger.contact.member_reach,
     )
 
 
@@ -269,6 +334,7 @@ class SegmentTable(eqx.Module):
     precurvature: jax.Array  # (S, 3)
     theta: jax.Array  # (S,) undeformed frame angle
     point: jax.Array  # (S, 3) undeformed start point
+    half: jax.Array | None = None  # (S, 2) half-thickness at the flexible part's ends
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -417,6 +483,7 @@ def segment_table(topo: Topology, finger: Finger, geo: Geometry) -> SegmentTable
         precurvature=jnp.stack([zero, kappa, zero], axis=-1),
         theta=theta,
         point=point,
+        half=0.5 * thick[:, jnp.asarray([0, 3])],
     )
 
 
@@ -522,15 +589,16 @@ class Problem(eqx.Module):
         # tip n_front + n_back = 0 (a zero-jump row with both signs +).
         force = jax.vmap(md.force)(both)
         moment = jax.vmap(md.moment)(both)
-        jf, jm = self._jumps(lam, force, moment)
+        jf, jm = self._jumps(lam, force, moment, starts, ends)
         wf = ix.w_sign_a[:, None] * force[ix.w_a] + force[ix.w_b] + jf
         wm = ix.w_sign_a[:, None] * moment[ix.w_a] + moment[ix.w_b] + jm
         rows.append(jax.vmap(md.force_rows, in_axes=(0, None))(wf, F).reshape(-1))
         rows.append(jax.vmap(md.moment_rows, in_axes=(0, None, None))(wm, F, L).reshape(-1))
         return jnp.concatenate(rows)
 
-    def _jumps(self, lam, force, moment):
-        """Per wrench row (F, M) with n(s+) = n(s-) - F at that cut; the tip row gets 0."""
+    def _jumps(self, lam, force, moment, starts, ends):
+        """Per wrench row (F, M) with n(s+) = n(s-) - F at that cut; the tip row gets
+        the opposite of a force acting there (member contact only)."""
         ix = self.topo.index
         n_rows = ix.w_a.shape[0]
         jf = jnp.zeros((n_rows, 3))
@@ -544,7 +612,18 @@ class Problem(eqx.Module):
             # minus its end wrench.
             jf = jf.at[ix.cb_rows].add(ix.cb_sign[:, None] * force[ix.cb_src])
             jm = jm.at[ix.cb_rows].add(ix.cb_sign[:, None] * moment[ix.cb_src])
+        if self.topo.members is not None:
+            mf, mm = node_jumps(self.topo.members, *self.member_args(starts, ends), n_rows)
+            jf, jm = jf + mf, jm + mm
         return jf, jm
+
+    def member_args(self, starts, ends):
+        """(slot kinematics, half-thicknesses, undeformed nodes, segment lengths, k,
+        delta) of member contact (planar states)."""
+        t, f = self.table, self.finger
+        kin = slot_kinematics(starts, ends)
+        k, delta = member_stiffness(f), member_smoothing(f)
+        return kin, t.half, undeformed_nodes(t), t.length, k, delta
 
     def integrated(self, Y, lam):
         """States at every segment's step points: (S, steps + 1, n_full)."""

@@ -69,6 +69,17 @@ class Contact(eqx.Module):
         on, up to three choices, and otherwise reports `contact_outside_near_segments`
         (the path solver of `grasp` and `release_force` then goes on with every segment).
         None: every segment, always.
+    member_contact: contact between the finger's own members (crossbeams, front and back
+        beam; see `_members`), static. None: on for fingers with objects or a support
+        (their crossbeams are then cut into equal pieces no longer than twice
+        `segment_length`); True: always; False: never.
+    member_stiffness: the members' k (N/mm^2). None: the same as `stiffness`.
+    max_member_penetration: the members' allowed penetration into each other as a
+        fraction of the thinnest member's thickness. None: the same fraction as
+        `max_penetration`. Its smoothing is half that penetration, and `grasp` stiffens
+        the members' contact until it holds.
+    member_reach: members farther apart than this in the undeformed finger (mm, gap
+        between their surfaces) are not tested against each other (static).
     """
 
     stiffness: jax.Array | None = eqx.field(
@@ -86,6 +97,14 @@ class Contact(eqx.Module):
     slip_direction: jax.Array = eqx.field(converter=as_float, default=(0.0, 0.0))
     segment_length: float = eqx.field(static=True, default=5.0)
     near_segments: int | None = eqx.field(static=True, default=8)
+    member_contact: bool | None = eqx.field(static=True, default=None)
+    member_stiffness: jax.Array | None = eqx.field(
+        converter=lambda x: None if x is None else as_float(x), default=None
+    )
+    max_member_penetration: jax.Array | None = eqx.field(
+        converter=lambda x: None if x is None else as_float(x), default=None
+    )
+    member_reach: float = eqx.field(static=True, default=10.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -220,6 +239,34 @@ def support_penetration_limit(finger):
 
 def support_smoothing(finger):
     return support_penetration_limit(finger) / 2.0
+
+
+def members_touch(finger) -> bool:
+    """Whether the finger's members are tested for contact with each other."""
+    on = finger.contact.member_contact
+    if on is None:
+        return bool(finger.objects) or finger.adaptor.support_length is not None
+    return bool(on)
+
+
+def member_stiffness(finger):
+    """The members' penalty stiffness (N/mm^2)."""
+    c = finger.contact
+    return stiffness(finger) if c.member_stiffness is None else c.member_stiffness
+
+
+def member_penetration_limit(finger):
+    """The members' largest allowed penetration into each other (mm)."""
+    c = finger.contact
+    frac = c.max_penetration if c.max_member_penetration is None else c.max_member_penetration
+    thinnest = jnp.minimum(finger.front.thickness, finger.back.thickness)
+    if finger.n_crossbeams:
+        thinnest = jnp.minimum(thinnest, jnp.min(finger.crossbeams.thickness))
+    return frac * thinnest
+
+
+def member_smoothing(finger):
+    return member_penetration_limit(finger) / 2.0
 
 
 def global_params(finger, geo):

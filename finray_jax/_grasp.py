@@ -11,6 +11,7 @@ holding force is twice that finger's.
 """
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -19,6 +20,9 @@ import numpy as np
 
 from ._contact import (
     check_friction,
+    member_penetration_limit,
+    member_smoothing,
+    member_stiffness,
     penalty,
     smoothing,
     stiffness,
@@ -31,7 +35,15 @@ from ._finger import BACK, FRONT, Finger, FingerError
 from ._objects import HalfPlane, _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
-from ._solve import SolverOptions, _direct_core, prepare, resolve_mode, undeformed_unknowns
+from ._members import group_forces
+from ._solve import (
+    SolverOptions,
+    _direct_core,
+    _make_problem,
+    prepare,
+    resolve_mode,
+    undeformed_unknowns,
+)
 from ._stability import CriticalPoint, Stability, stability_of, stable_neighbours
 from ._types import as_float
 
@@ -55,6 +67,11 @@ class ContactResult(eqx.Module):
     actuator_force: force along the closing direction the actuator applies to the
         finger's adaptor (N): everything the adaptor applies to the finger (base reactions
         and the support) projected on the closing direction.
+    member_penetration: largest penetration of one member of the finger into another
+        (mm; 0 where member contact is off, `Contact.member_contact`).
+    member_force: (members, members) the contact force member j presses on member i
+        with (N; members are front, back, then the crossbeams); internal, so it is in no
+        balance of the finger as a whole.
     """
 
     force: jax.Array
@@ -67,6 +84,31 @@ class ContactResult(eqx.Module):
     support_force: jax.Array
     crossbeam_force: jax.Array
     actuator_force: jax.Array
+    member_penetration: jax.Array = eqx.field(converter=as_float, default=0.0)
+    member_force: jax.Array = eqx.field(converter=as_float, default=((0.0,),))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _member_outputs(topo, integrator, finger, Y, lam):
+    """(largest penetration, (B, B) contact forces) between the finger's members."""
+    problem = _make_problem(topo, integrator, finger)
+    starts, ends = problem.ends(jnp.reshape(Y, (topo.n_segments, -1)), lam)
+    plan = topo.members
+    size, gap, gap0 = group_forces(plan, *problem.member_args(starts, ends))
+    pen = jnp.max(jnp.where(gap0 > 0, -gap, 0.0), initial=0.0)
+    a, b = plan.group_members[:, 0], plan.group_members[:, 1]
+    B = topo.n_beams
+    # every group's force acts on its sample's member (a) and back on the other (b)
+    forces = jnp.zeros((B, B)).at[a, b].add(size).at[b, a].add(size)
+    return pen, 0.5 * forces
+
+
+def with_members(res: ContactResult, topo, integrator, finger, sol) -> ContactResult:
+    """The contact result with the members' contact filled in (from the topology)."""
+    if topo.members is None or not topo.members.n_groups:
+        return res
+    pen, forces = _member_outputs(topo, integrator, finger, sol.unknowns, sol.load_factor)
+    return dataclasses.replace(res, member_penetration=pen, member_force=forces)
 
 
 def _blocks(x, steps):
@@ -241,6 +283,11 @@ class GraspSolution(eqx.Module):
     def converged(self) -> bool:
         return bool(self.solution.result == RESULTS.successful)
 
+    @property
+    def member_stiffness(self):
+        """The members' penalty stiffness used (N/mm^2)."""
+        return member_stiffness(self.finger)
+
     def penetration_warnings(self) -> list[str]:
         """A line for each penetration limit the grasp exceeds (none when both hold).
 
@@ -268,6 +315,16 @@ class GraspSolution(eqx.Module):
                     support_penetration_limit(f),
                     "contact.max_support_penetration",
                     self.support_stiffness,
+                )
+            )
+        if self.topology is not None and self.topology.members is not None:
+            checks.append(
+                (
+                    "another member",
+                    c.member_penetration,
+                    member_penetration_limit(f),
+                    "contact.max_member_penetration",
+                    self.member_stiffness,
                 )
             )
         for what, pen, limit, key, k in checks:
@@ -298,12 +355,11 @@ def _with_contact(finger: Finger, **values) -> Finger:
     return eqx.tree_at(lambda f: f.contact, finger, c)
 
 
-def _with_stiffness(finger: Finger, k, k_support=None) -> Finger:
-    """The finger with the objects' penalty stiffness k and the support's (default: the
-    one it has)."""
-    if k_support is None:
-        return _with_contact(finger, stiffness=k)
-    return _with_contact(finger, stiffness=k, support_stiffness=k_support)
+def _with_stiffness(finger: Finger, k, k_support=None, k_members=None) -> Finger:
+    """The finger with the objects' penalty stiffness k, the support's and the members'
+    (default: the ones it has)."""
+    values = {"stiffness": k, "support_stiffness": k_support, "member_stiffness": k_members}
+    return _with_contact(finger, **{key: v for key, v in values.items() if v is not None})
 
 
 def unit_direction(direction, name):
@@ -598,19 +654,33 @@ def grasp(
     # (check_objects validated the finger)
     stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
     stepper.direction = w
-    k, k_s = float(stiffness(finger)), float(support_stiffness(finger))
-    finger = _with_stiffness(finger, k, k_s)
+    ks = [float(x) for x in (stiffness(finger), support_stiffness(finger))]
+    ks.append(float(member_stiffness(finger)))
+    finger = _with_stiffness(finger, *ks)
 
     def at(t):
         return _moved(finger, -t * w)
 
+    def result(t, sol):
+        res = contact_result(at(t), sol, w)
+        return with_members(res, stepper.topo, integrator, at(t), sol)
+
+    def penetrations(res):
+        return [float(x) for x in (res.max_penetration, res.support_penetration)] + [
+            float(res.member_penetration)
+        ]
+
     cap = _closing_step_cap(finger)
-    limit = float(finger.contact.max_penetration * finger.front.thickness)
-    limit_s = float(support_penetration_limit(finger))
-    onsets = (float(0.5 * smoothing(finger)), float(0.5 * support_smoothing(finger)))
+    limits = [
+        float(finger.contact.max_penetration * finger.front.thickness),
+        float(support_penetration_limit(finger)),
+        float(member_penetration_limit(finger)),
+    ]
+    onsets = [0.5 * float(x(finger)) for x in (smoothing, support_smoothing, member_smoothing)]
     # penetration - onset ~ k^-order: 1 for a distributed contact, about 3/4 for the
-    # support's edge (re-estimated from every stiffening)
-    orders = [1.0, 0.75]
+    # support's edge and for members meeting at a point (re-estimated from every
+    # stiffening)
+    orders = [1.0, 0.75, 0.75]
     rounds, start = 0, None
     while True:
         if closing is not None:
@@ -619,33 +689,34 @@ def grasp(
             t, sol, ok = _find_closing(stepper, at, w, fa, cap, start)
         if sol is None:
             sol, _ = stepper.solve(at(0.0), None)
-        res = contact_result(at(t), sol, w)
+        res = result(t, sol)
         stiffened = False
-        pens = (float(res.max_penetration), float(res.support_penetration))
-        while ok and stiffen and (pens[0] > limit or pens[1] > limit_s) and rounds < 8:
+        pens = penetrations(res)
+        over = lambda pens: any(p > lim for p, lim in zip(pens, limits))
+        while ok and stiffen and over(pens) and rounds < 8:
             # penetration = onset + c k^-order: scale each k so that the part above the
             # onset fits in what is left, stepping log k from the old to the new
             # stiffnesses (warm started).
-            old = (k, k_s)
-            new = tuple(
+            old = list(ks)
+            new = [
                 _stiffer(kk, p, lim, onset, order)
-                for kk, p, lim, onset, order in zip(old, pens, (limit, limit_s), onsets, orders)
-            )
+                for kk, p, lim, onset, order in zip(old, pens, limits, onsets, orders)
+            ]
             stiffer = lambda u, k0=old, k1=new, t=t: _with_stiffness(
                 at(t), *(a * (b / a) ** u for a, b in zip(k0, k1))
             )
             u, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
             if not ok and u > 0:  # part of the way: go on from there
-                new, ok = tuple(a * (b / a) ** u for a, b in zip(old, new)), True
+                new, ok = [a * (b / a) ** u for a, b in zip(old, new)], True
             elif not ok:  # not a step: keep the last equilibrium (`penetration_warnings`)
                 ok = True
                 break
             if ok:
-                k, k_s = new
-                finger = _with_stiffness(finger, k, k_s)  # (at() closes over the new finger)
-                res = contact_result(at(t), sol, w)
-                seen = (float(res.max_penetration), float(res.support_penetration))
-                for i in range(2):
+                ks = new
+                finger = _with_stiffness(finger, *ks)  # (at() closes over the new finger)
+                res = result(t, sol)
+                seen = penetrations(res)
+                for i in range(3):
                     orders[i] = _observed_order(
                         old[i], new[i], pens[i], seen[i], onsets[i], orders[i]
                     )
@@ -664,7 +735,7 @@ def grasp(
             found = stepper.stable_next_to(t, sol, t, at(t), sol, stab)
             if found:
                 sol, stab = found[0]
-                res = contact_result(at(t), sol, w)
+                res = result(t, sol)
             else:
                 ok, stepper.failure = False, RESULTS.unstable_equilibrium
     if not ok:  # (the last accepted state, with why the next step failed)
@@ -675,8 +746,8 @@ def grasp(
         res,
         at(t),
         jnp.asarray(t),
-        jnp.asarray(k),
-        jnp.asarray(k_s),
+        jnp.asarray(ks[0]),
+        jnp.asarray(ks[1]),
         stepper.calls,
         2 if symmetric else 1,
         stepper.topo,
@@ -719,7 +790,7 @@ def regrasp(g: GraspSolution, finger: Finger, closing=None, *, options=SolverOpt
 def _resolve_near(g: GraspSolution, moved: Finger, integrator, options):
     """The equilibrium of `moved` (objects where they are at the closing) with g's penalty
     stiffness, segment cuts and start: (Solution, ContactResult)."""
-    moved = _with_stiffness(moved, g.stiffness, g.support_stiffness)
+    moved = _with_stiffness(moved, g.stiffness, g.support_stiffness, g.member_stiffness)
     check_friction(g.topology.contact, moved)
     # ref_sign 0 (the sign at g's equilibrium), passed as the stepper passes it: an f64
     # array, so this call reuses the grasp's compiled program

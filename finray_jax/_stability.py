@@ -37,6 +37,7 @@ import numpy as np
 import scipy.linalg
 
 from ._finger import FingerError
+from ._members import node_jumps
 from ._rod import Integrator, flow_jacobians
 
 KIN = slice(0, 3)  # (x, z, theta) in a planar state
@@ -166,11 +167,30 @@ def _at_equilibrium(topo, integrator, finger, Y, lam):
     from ._solve import _make_problem
 
     problem = _make_problem(topo, integrator, finger)
-    starts = problem.start_states(jnp.reshape(Y, (topo.n_segments, -1)))
+    Y = jnp.reshape(Y, (topo.n_segments, -1))
+    starts = problem.start_states(Y)
     Q = problem.params(lam)
     jac = flow_jacobians(problem.model, integrator, starts, Q, True, False, True)[1]
     t = problem.table
-    return jac, problem.scale(), t.length, t.rigid, problem.geo.L, problem.geo.F
+    members = None
+    if topo.members is not None:
+        members = _member_jacobian(problem, Y, lam)
+    return jac, problem.scale(), t.length, t.rigid, problem.geo.L, problem.geo.F, members
+
+
+def _member_jacobian(problem, Y, lam):
+    """d(member-contact force and moment at every wrench row) / d(x, z, theta of every
+    slot): (rows, 3, 2 S, 3). The contact reads the slots' kinematics only."""
+    starts, ends = problem.ends(Y, lam)
+    n_rows = problem.topo.index.w_a.shape[0]
+
+    kin, *rest = problem.member_args(starts, ends)
+
+    def jumps(kin):
+        jf, jm = node_jumps(problem.topo.members, kin, *rest, n_rows)
+        return jnp.stack([jf[:, 0], jf[:, 2], jm[:, 1]], axis=-1)
+
+    return jax.jacfwd(jumps)(kin)
 
 
 def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -> Stability:
@@ -182,10 +202,13 @@ def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -
         )
     out = _at_equilibrium(topo, integrator, finger, jnp.asarray(Y), jnp.asarray(lam, float))
     jac, y_scale, length, rigid = (np.asarray(x) for x in out[:4])
-    L, F = (float(x) for x in out[4:])
+    L, F = (float(x) for x in out[4:6])
     jac = _full_jacobian(jac, topo.model.translation_free)
     nodes = _Nodes(topo, L, length, rigid)
     S = topo.n_segments
+    extra = None
+    if out[6] is not None:
+        extra = _member_stiffness(topo, nodes, np.asarray(out[6]), np.array([L, L, 1.0]), F * L)
     out = condensed_stability(
         jac,
         nodes.of[:S],
@@ -196,19 +219,47 @@ def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -
         wrench_scale=np.array([F, F, F * L]),
         y_scale=np.asarray(y_scale),
         n_eigenvalues=n_eigenvalues,
+        extra=extra,
     )
     shape = (out.perturbations.shape[0],) + np.shape(Y)
     return dataclasses.replace(out, perturbations=out.perturbations.reshape(shape))
 
 
+def _member_stiffness(topo, nodes: _Nodes, jac, kin_scale, unit):
+    """The members' contact stiffness on the node coordinates (scaled as K): minus the
+    derivative of the contact force on each node (its wrench row's jump; the tip's row
+    holds minus the force) in the kinematics of every slot."""
+    ix = topo.index
+    n_rows = ix.w_a.shape[0]
+    sign = np.ones(n_rows)
+    sign[-1] = -1.0  # the tip's row
+    row_node = nodes.of[ix.w_b]
+    K = np.zeros((nodes.count, 3, nodes.count, 3))
+    d = -sign[:, None, None, None] * jac  # (rows, 3, slots, 3)
+    np.add.at(K, (row_node[:, None, None, None], np.arange(3)[None, :, None, None],
+                  nodes.of[None, None, :, None], np.arange(3)[None, None, None, :]), d)
+    K *= kin_scale[None, :, None, None] * kin_scale[None, None, None, :] / unit
+    return K.reshape(3 * nodes.count, 3 * nodes.count)
+
+
 def condensed_stability(
-    jac, start_node, end_node, fixed, flexible, kin_scale, wrench_scale, y_scale, n_eigenvalues=4
+    jac,
+    start_node,
+    end_node,
+    fixed,
+    flexible,
+    kin_scale,
+    wrench_scale,
+    y_scale,
+    n_eigenvalues=4,
+    extra=None,
 ) -> Stability:
     """The two tests of the module's note, from every segment's flow Jacobian at its step
     points, jac (S, n + 1, 6, 6) in (x, z, theta, nx, nz, my); the nodes of its start and
     end (S,); fixed (n_nodes, 3): the imposed directions; flexible (S,): segments with a
     flexible part (the others join or fix their ends). Scales: of the kinematics, the
-    wrench and the unknowns (Y = y / y_scale)."""
+    wrench and the unknowns (Y = y / y_scale). extra: a stiffness to add to K (scaled as
+    K: the members' contact)."""
     S = jac.shape[0]
     n_nodes = fixed.shape[0]
     unit = wrench_scale[0] * kin_scale[0]  # F L
@@ -236,6 +287,8 @@ def condensed_stability(
     )
     K = np.zeros((3 * n_nodes, 3 * n_nodes))
     np.add.at(K, (dofs[:, :, None], dofs[:, None, :]), Ke)
+    if extra is not None:
+        K += extra
     free = np.flatnonzero(~fixed.reshape(-1))
     Kf = K[np.ix_(free, free)]
     norm = max(np.linalg.norm(Kf), np.finfo(float).tiny)
