@@ -32,10 +32,10 @@ from ._contact import (
     with_friction,
 )
 from ._finger import BACK, FRONT, Finger, FingerError
+from ._members import group_forces
 from ._objects import HalfPlane, _safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
-from ._members import group_forces
 from ._solve import (
     SolverOptions,
     _direct_core,
@@ -94,8 +94,8 @@ def _member_outputs(topo, integrator, finger, Y, lam):
     problem = _make_problem(topo, integrator, finger)
     starts, ends = problem.ends(jnp.reshape(Y, (topo.n_segments, -1)), lam)
     plan = topo.members
-    size, gap, gap0 = group_forces(plan, *problem.member_args(starts, ends))
-    pen = jnp.max(jnp.where(gap0 > 0, -gap, 0.0), initial=0.0)
+    size, gap = group_forces(plan, *problem.member_args(starts, ends))
+    pen = jnp.max(jnp.maximum(-gap, 0.0), initial=0.0)
     a, b = plan.group_members[:, 0], plan.group_members[:, 1]
     B = topo.n_beams
     # every group's force acts on its sample's member (a) and back on the other (b)

@@ -7,24 +7,27 @@ order in its length. Every segment carries sample points at a quarter of its len
 apart (its start node included). A sample p of member A and member B touch where their
 bands overlap: the gap is g = |p - c| - h_A - h_B, with c the point of B's centreline
 nearest p (over B's nearby segments; a few Newton steps on the Hermite parameter from the
-chord's projection). The contact force on A at p is (k l / 4) ramp(-g) (p - c) / |p - c|,
-with the objects' C1 penalty ramp (`_contact.penalty`), k the members' stiffness per unit
-length and l / 4 the sample's share of its segment; B gets the opposite force at c. Every
-member is sampled against every other one, so contact is seen from both sides.
+chord's projection). The contact is a penalty energy: each sample stores (l / 4) U(g),
+with U the integral of the objects' C1 penalty ramp (`_contact.penalty`, with the
+members' stiffness k per unit length and their own smoothing) and l / 4 the sample's share
+of its segment. Every member is sampled against every other one, so contact is seen from
+both sides.
 
-The residual is solved at the shooting nodes, so a force at a point inside a segment is
-moved to the segment's two nodes: shares 1 - xi and xi of the force at its parameter xi,
-and the moment that keeps the pair statically equal to the force (split the same way).
-Between its nodes a segment therefore carries the contact in its end wrenches only; the
-finger's equilibrium, every node and every other segment see it where it acts.
+The residual is solved at the shooting nodes, so the contact acts there: the force and
+moment on each node are minus the energy's gradient in the node's position and angle
+(they enter its wrench row as a point load would). The contact is therefore conservative
+on the nodes, its stiffness (the energy's Hessian) is symmetric, and the stability test
+adds it to the condensed stiffness. Between its nodes a segment carries the contact in
+its end wrenches only; the finger's equilibrium and every node see it where it acts.
 
 Which samples can touch which members is fixed with the topology, from the undeformed
 finger: a member within `Contact.member_reach` of the sample. Where two members are
-joined (a crossbeam's ends, the tip) their bands overlap by construction; a sample whose
-undeformed gap to a member is not positive is part of the joint and never in contact with
-it (also tested on the traced design, so a design that thickens a member cannot press a
-joint). A main beam's first segment is left out (its start is held by the base, which
-would take a force there).
+joined (a crossbeam's ends, the tip) their bands overlap by construction: a sample whose
+undeformed gap to a member is not positive is inside the joint and never in contact with
+it, and one whose undeformed gap is below half the thinner member's thickness lies on
+the joint's fillet, where contact sets in later (`joint_offset`). Both are tested on the
+traced design too, so a design that thickens a member cannot press a joint. A main beam's first segment is left out (its start is held by the base, which
+would take a force there). Planar fingers only.
 """
 
 import dataclasses
@@ -184,9 +187,21 @@ def _group_contacts(plan: MemberPlan, nodes: Nodes):
     xi_b = _newton(p, *nodes.ends(seg_b), xi_b)
     diff = p - nodes.at(seg_b, xi_b)
     dist = _norm(diff)
-    gap = dist - h_a - nodes.half(seg_b, xi_b)
+    h_b = nodes.half(seg_b, xi_b)
+    gap = dist - h_a - h_b
     normal = diff / jnp.where(dist > 0, dist, 1.0)[:, None]
-    return gap, normal, seg_b, xi_b, p, seg, xi
+    return gap, normal, seg_b, xi_b, p, seg, xi, jnp.minimum(h_a, h_b)
+
+
+def joint_offset(plan: MemberPlan, undeformed: Nodes):
+    """Per group: how much of the gap the joint's fillet takes (mm; added to the gap).
+    A sample whose undeformed gap g0 to the other member is below half the thinner
+    member's thickness h lies on a joint's fillet: its contact starts only once it has
+    closed by h - g0 more, which goes to 0 where the fillet ends, so the contact sets in
+    continuously along the member. A sample with g0 <= 0 is inside the joint: none."""
+    out = _group_contacts(plan, undeformed)
+    gap0, h = out[0], out[-1]
+    return jnp.where(gap0 > 0, jnp.maximum(h - gap0, 0.0), jnp.inf)
 
 
 def _energy_density(g, k, delta):
@@ -207,18 +222,18 @@ def _nodes_of(kin, half):
 
 def energy(plan: MemberPlan, kin, half, undeformed: Nodes, length, k, delta):
     """The members' contact energy (N mm) as a function of the slots' kinematics."""
-    gap, _, _, _, _, seg, _ = _group_contacts(plan, _nodes_of(kin, half))
-    gap0 = jax.lax.stop_gradient(_group_contacts(plan, undeformed)[0])
+    gap, seg = (_group_contacts(plan, _nodes_of(kin, half))[i] for i in (0, 5))
+    offset = jax.lax.stop_gradient(joint_offset(plan, undeformed))
     share = length[seg] / N_SAMPLES
-    return jnp.sum(jnp.where(gap0 > 0, _energy_density(gap, k, delta) * share, 0.0))
+    return jnp.sum(_energy_density(gap + offset, k, delta) * share)
 
 
 def group_forces(plan: MemberPlan, kin, half, undeformed: Nodes, length, k, delta):
-    """Per group: the size of its contact force (N), its gap and its undeformed gap."""
-    gap, _, _, _, _, seg, _ = _group_contacts(plan, _nodes_of(kin, half))
-    gap0 = _group_contacts(plan, undeformed)[0]
-    force = jnp.where(gap0 > 0, penalty(gap, k, delta) * length[seg] / N_SAMPLES, 0.0)
-    return force, gap, gap0
+    """Per group: the size of its contact force (N) and its gap, less the joint's offset
+    (`joint_offset`): minus the penetration."""
+    gap, seg = (_group_contacts(plan, _nodes_of(kin, half))[i] for i in (0, 5))
+    gap = gap + joint_offset(plan, undeformed)
+    return penalty(gap, k, delta) * length[seg] / N_SAMPLES, gap
 
 
 def node_jumps(plan: MemberPlan, kin, half, undeformed: Nodes, length, k, delta, n_rows):
@@ -228,11 +243,9 @@ def node_jumps(plan: MemberPlan, kin, half, undeformed: Nodes, length, k, delta,
     its conjugate is the moment about y), so the contact is conservative on the nodes and
     its stiffness is the energy's Hessian."""
     on_slots = -jax.grad(energy, argnums=1)(plan, kin, half, undeformed, length, k, delta)
-    S = half.shape[0]
     rows = jnp.asarray(np.where(plan.node_rows < 0, n_rows, plan.node_rows).T.reshape(-1))
     signs = jnp.asarray(plan.node_signs.T.reshape(-1))[:, None]
     f = signs * on_slots  # (2 S, 3): slots in the order of `kin`
-    del S
     jf = jnp.zeros((n_rows + 1, 3)).at[rows, 0].add(f[:, 0]).at[rows, 2].add(f[:, 1])
     jm = jnp.zeros((n_rows + 1, 3)).at[rows, 1].add(f[:, 2])
     return jf[:n_rows], jm[:n_rows]
@@ -260,15 +273,19 @@ def build_plan(seg_beam, first_main, nodes_np: Nodes, node_rows, node_signs, rea
     p = np.asarray(n.at(seg_a, xi_a))[:, None]  # (P, 1, 2) against (1, segs, 2)
     xi_b, c = nearest(p, n.p0[segs][None], n.t0[segs][None], n.p1[segs][None], n.t1[segs][None])
     gap = np.linalg.norm(p - np.asarray(c), axis=-1) - np.asarray(n.half(seg_a, xi_a))[:, None]
-    gap = gap - np.asarray(n.half(segs[None], np.asarray(xi_b)))
+    h_b = np.asarray(n.half(segs[None], np.asarray(xi_b)))
+    gap = gap - h_b
     groups = []  # (sample index, own member, other member, candidates)
     for b in np.unique(seg_beam):
         cols = seg_beam[segs] == b
         g = np.where(cols[None], gap, np.inf)
-        nearest_gap = g.min(axis=1)
-        for i in np.flatnonzero((seg_beam[seg_a] != b) & (nearest_gap > 0) & (nearest_gap <= reach)):
+        best = np.argmin(g, axis=1)
+        nearest_gap = g[np.arange(g.shape[0]), best]
+        clear = nearest_gap > 0
+        other = (seg_beam[seg_a] != b) & clear & (nearest_gap <= reach)
+        for i in np.flatnonzero(other):
             # the nearest segment and its neighbours on that member
-            k = int(np.argmin(g[i]))
+            k = int(best[i])
             near = [m for m in (k - 1, k, k + 1) if 0 <= m < segs.size and cols[m]]
             groups.append((i, seg_beam[seg_a[i]], b, segs[near]))
     groups.sort(key=lambda x: (x[0], x[2]))
@@ -293,8 +310,11 @@ def undeformed_nodes(table) -> Nodes:
     th0, th1 = table.theta, table.theta + kappa * table.length
     p0 = table.point[:, ::2]
     half = 0.5 * th1 - 0.5 * th0
-    chord = 2.0 * jnp.where(jnp.abs(kappa) > 1e-12, jnp.sin(half) / jnp.where(
-        jnp.abs(kappa) > 1e-12, kappa, 1.0), 0.5 * table.length)
+    chord = 2.0 * jnp.where(
+        jnp.abs(kappa) > 1e-12,
+        jnp.sin(half) / jnp.where(jnp.abs(kappa) > 1e-12, kappa, 1.0),
+        0.5 * table.length,
+    )
     mid = 0.5 * (th0 + th1)
     p1 = p0 + chord[:, None] * jnp.stack([jnp.sin(mid), jnp.cos(mid)], axis=-1)
     tangent = lambda th: jnp.stack([jnp.sin(th), jnp.cos(th)], axis=-1)

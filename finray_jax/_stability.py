@@ -236,8 +236,16 @@ def _member_stiffness(topo, nodes: _Nodes, jac, kin_scale, unit):
     row_node = nodes.of[ix.w_b]
     K = np.zeros((nodes.count, 3, nodes.count, 3))
     d = -sign[:, None, None, None] * jac  # (rows, 3, slots, 3)
-    np.add.at(K, (row_node[:, None, None, None], np.arange(3)[None, :, None, None],
-                  nodes.of[None, None, :, None], np.arange(3)[None, None, None, :]), d)
+    np.add.at(
+        K,
+        (
+            row_node[:, None, None, None],
+            np.arange(3)[None, :, None, None],
+            nodes.of[None, None, :, None],
+            np.arange(3)[None, None, None, :],
+        ),
+        d,
+    )
     K *= kin_scale[None, :, None, None] * kin_scale[None, None, None, :] / unit
     return K.reshape(3 * nodes.count, 3 * nodes.count)
 
