@@ -26,7 +26,8 @@ joined (a crossbeam's ends, the tip) their bands overlap by construction: a samp
 undeformed gap to a member is not positive is inside the joint and never in contact with
 it, and one whose undeformed gap is below half the thinner member's thickness lies on
 the joint's fillet, where contact sets in later (`joint_offset`). Both are tested on the
-traced design too, so a design that thickens a member cannot press a joint. A main beam's first segment is left out (its start is held by the base, which
+traced design too, so a design that thickens a member cannot press a joint. A main
+beam's first segment is left out (its start is held by the base, which
 would take a force there). Planar fingers only.
 """
 
