@@ -732,11 +732,17 @@ def _contact(value, r: _Reader) -> Contact:
         "friction_regularisation",
         "segment_length",
         "near_segments",
+        "member_contact",
+        "member_stiffness",
+        "max_member_penetration",
+        "member_reach",
     )
     tbl = r.table(value, "contact", keys)
     args = {}
     for key in keys:
-        if key == "near_segments" and key in tbl:  # a count, or "all" (None)
+        if key == "member_contact" and key in tbl:
+            args[key] = r.boolean(tbl[key], "contact.member_contact")
+        elif key == "near_segments" and key in tbl:  # a count, or "all" (None)
             v = tbl[key]
             if isinstance(v, str):
                 r.string(v, "contact.near_segments", ("all",))
@@ -1044,6 +1050,13 @@ def _objects_toml(finger: Finger) -> list[str]:
         out.append(f"support_stiffness = {_tf(c.support_stiffness)}")
     if c.max_support_penetration is not None:
         out.append(f"max_support_penetration = {_tf(c.max_support_penetration)}")
+    if c.member_contact is not None:
+        out.append(f"member_contact = {'true' if c.member_contact else 'false'}")
+    if c.member_stiffness is not None:
+        out.append(f"member_stiffness = {_tf(c.member_stiffness)}")
+    if c.max_member_penetration is not None:
+        out.append(f"max_member_penetration = {_tf(c.max_member_penetration)}")
+    out.append(f"member_reach = {_tf(c.member_reach)}")
     out += [
         f"friction = {_tf(c.friction)}",
         f"friction_regularisation = {_tf(c.friction_regularisation)}",
