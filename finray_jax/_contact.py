@@ -259,7 +259,11 @@ def member_penetration_limit(finger):
     """The members' largest allowed penetration into each other (mm)."""
     c = finger.contact
     frac = c.max_penetration if c.max_member_penetration is None else c.max_member_penetration
-    thinnest = jnp.minimum(finger.front.thickness, finger.back.thickness)
+    ends = lambda sec: (
+        sec.thickness,
+        sec.thickness if sec.tip_thickness is None else sec.tip_thickness,
+    )
+    thinnest = jnp.min(jnp.stack([*ends(finger.front), *ends(finger.back)]))
     if finger.n_crossbeams:
         thinnest = jnp.minimum(thinnest, jnp.min(finger.crossbeams.thickness))
     return frac * thinnest

@@ -654,8 +654,7 @@ def grasp(
     # (check_objects validated the finger)
     stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
     stepper.direction = w
-    ks = [float(x) for x in (stiffness(finger), support_stiffness(finger))]
-    ks.append(float(member_stiffness(finger)))
+    ks = [float(x(finger)) for x in (stiffness, support_stiffness, member_stiffness)]
     finger = _with_stiffness(finger, *ks)
 
     def at(t):
@@ -666,9 +665,8 @@ def grasp(
         return with_members(res, stepper.topo, integrator, at(t), sol)
 
     def penetrations(res):
-        return [float(x) for x in (res.max_penetration, res.support_penetration)] + [
-            float(res.member_penetration)
-        ]
+        pens = (res.max_penetration, res.support_penetration, res.member_penetration)
+        return [float(x) for x in pens]
 
     cap = _closing_step_cap(finger)
     limits = [

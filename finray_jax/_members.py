@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._contact import penalty
+from ._objects import _safe_norm
 
 N_SAMPLES = 4  # sample points per segment, at xi = 0, 1/4, 1/2, 3/4
 XI = np.arange(N_SAMPLES) / N_SAMPLES
@@ -105,7 +106,7 @@ class MemberPlan:
 def hermite(p0, t0, p1, t1, xi):
     """Point, first and second derivative in xi of the cubic Hermite curve from p0 to p1
     with unit tangents t0, t1 scaled by the chord length (..., 2)."""
-    c = _norm(p1 - p0)[..., None]
+    c = _safe_norm(p1 - p0)[..., None]
     m0, m1 = c * t0, c * t1
     x = xi[..., None]
     x2, x3 = x * x, x * x * x
@@ -114,12 +115,6 @@ def hermite(p0, t0, p1, t1, xi):
     d1 = (6 * x2 - 6 * x) * (p0 - p1) + (3 * x2 - 4 * x + 1) * m0 + (3 * x2 - 2 * x) * m1
     d2 = (12 * x - 6) * (p0 - p1) + (6 * x - 4) * m0 + (6 * x - 2) * m1
     return point, d1, d2
-
-
-def _norm(v):
-    sq = jnp.sum(v * v, axis=-1)
-    small = sq < 1e-30
-    return jnp.where(small, 0.0, jnp.sqrt(jnp.where(small, 1.0, sq)))
 
 
 def _dot(a, b):
@@ -165,8 +160,8 @@ class Nodes(NamedTuple):
 
 
 def _group_contacts(plan: MemberPlan, nodes: Nodes):
-    """Per group: gap, the unit normal on the sample (toward it), the other member's
-    segment and its parameter, and the sample's point.
+    """Per group: the gap, the sample's segment, and half the thinner member's thickness
+    there.
 
     The nearest candidate and its parameter are found without derivatives (a choice,
     and iterations); one Newton step from that parameter, with derivatives, then gives
@@ -181,17 +176,14 @@ def _group_contacts(plan: MemberPlan, nodes: Nodes):
     n0, p0, h0 = fixed
     pp = jnp.broadcast_to(p0[:, None], cands.shape + (2,))
     xi_all, c_all = nearest(pp, *n0.ends(cands))
-    gap_all = _norm(pp - c_all) - h0[:, None] - n0.half(cands, xi_all)
+    gap_all = _safe_norm(pp - c_all) - h0[:, None] - n0.half(cands, xi_all)
     best = jnp.argmin(jnp.where(valid, gap_all, jnp.inf), axis=1)
     seg_b = jnp.take_along_axis(cands, best[:, None], axis=1)[:, 0]
     xi_b = jnp.take_along_axis(xi_all, best[:, None], axis=1)[:, 0]
     xi_b = _newton(p, *nodes.ends(seg_b), xi_b)
-    diff = p - nodes.at(seg_b, xi_b)
-    dist = _norm(diff)
     h_b = nodes.half(seg_b, xi_b)
-    gap = dist - h_a - h_b
-    normal = diff / jnp.where(dist > 0, dist, 1.0)[:, None]
-    return gap, normal, seg_b, xi_b, p, seg, xi, jnp.minimum(h_a, h_b)
+    gap = _safe_norm(p - nodes.at(seg_b, xi_b)) - h_a - h_b
+    return gap, seg, jnp.minimum(h_a, h_b)
 
 
 def joint_offset(plan: MemberPlan, undeformed: Nodes):
@@ -200,8 +192,7 @@ def joint_offset(plan: MemberPlan, undeformed: Nodes):
     member's thickness h lies on a joint's fillet: its contact starts only once it has
     closed by h - g0 more, which goes to 0 where the fillet ends, so the contact sets in
     continuously along the member. A sample with g0 <= 0 is inside the joint: none."""
-    out = _group_contacts(plan, undeformed)
-    gap0, h = out[0], out[-1]
+    gap0, _, h = _group_contacts(plan, undeformed)
     return jnp.where(gap0 > 0, jnp.maximum(h - gap0, 0.0), jnp.inf)
 
 
@@ -223,7 +214,7 @@ def _nodes_of(kin, half):
 
 def energy(plan: MemberPlan, kin, half, undeformed: Nodes, length, k, delta):
     """The members' contact energy (N mm) as a function of the slots' kinematics."""
-    gap, seg = (_group_contacts(plan, _nodes_of(kin, half))[i] for i in (0, 5))
+    gap, seg, _ = _group_contacts(plan, _nodes_of(kin, half))
     offset = jax.lax.stop_gradient(joint_offset(plan, undeformed))
     share = length[seg] / N_SAMPLES
     return jnp.sum(_energy_density(gap + offset, k, delta) * share)
@@ -232,7 +223,7 @@ def energy(plan: MemberPlan, kin, half, undeformed: Nodes, length, k, delta):
 def group_forces(plan: MemberPlan, kin, half, undeformed: Nodes, length, k, delta):
     """Per group: the size of its contact force (N) and its gap, less the joint's offset
     (`joint_offset`): minus the penetration."""
-    gap, seg = (_group_contacts(plan, _nodes_of(kin, half))[i] for i in (0, 5))
+    gap, seg, _ = _group_contacts(plan, _nodes_of(kin, half))
     gap = gap + joint_offset(plan, undeformed)
     return penalty(gap, k, delta) * length[seg] / N_SAMPLES, gap
 

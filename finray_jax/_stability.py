@@ -37,7 +37,7 @@ import numpy as np
 import scipy.linalg
 
 from ._finger import FingerError
-from ._members import node_jumps
+from ._members import energy
 from ._rod import Integrator, flow_jacobians
 
 KIN = slice(0, 3)  # (x, z, theta) in a planar state
@@ -170,27 +170,19 @@ def _at_equilibrium(topo, integrator, finger, Y, lam):
     Y = jnp.reshape(Y, (topo.n_segments, -1))
     starts = problem.start_states(Y)
     Q = problem.params(lam)
-    jac = flow_jacobians(problem.model, integrator, starts, Q, True, False, True)[1]
+    states, jac = flow_jacobians(problem.model, integrator, starts, Q, True, False, True)[:2]
     t = problem.table
     members = None
     if topo.members is not None:
-        members = _member_jacobian(problem, Y, lam)
+        members = _member_hessian(problem, starts, states[:, -1])
     return jac, problem.scale(), t.length, t.rigid, problem.geo.L, problem.geo.F, members
 
 
-def _member_jacobian(problem, Y, lam):
-    """d(member-contact force and moment at every wrench row) / d(x, z, theta of every
-    slot): (rows, 3, 2 S, 3). The contact reads the slots' kinematics only."""
-    starts, ends = problem.ends(Y, lam)
-    n_rows = problem.topo.index.w_a.shape[0]
-
+def _member_hessian(problem, starts, ends):
+    """The Hessian of the members' contact energy in the (x, z, theta) of every slot:
+    (2 S, 3, 2 S, 3). Their contact reads the slots' kinematics only."""
     kin, *rest = problem.member_args(starts, ends)
-
-    def jumps(kin):
-        jf, jm = node_jumps(problem.topo.members, kin, *rest, n_rows)
-        return jnp.stack([jf[:, 0], jf[:, 2], jm[:, 1]], axis=-1)
-
-    return jax.jacfwd(jumps)(kin)
+    return jax.hessian(energy, argnums=1)(problem.topo.members, kin, *rest)
 
 
 def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -> Stability:
@@ -208,7 +200,7 @@ def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -
     S = topo.n_segments
     extra = None
     if out[6] is not None:
-        extra = _member_stiffness(topo, nodes, np.asarray(out[6]), np.array([L, L, 1.0]), F * L)
+        extra = _member_stiffness(nodes, np.asarray(out[6]), np.array([L, L, 1.0]), F * L)
     out = condensed_stability(
         jac,
         nodes.of[:S],
@@ -225,29 +217,17 @@ def stability_of(topo, integrator, finger, Y, lam=1.0, n_eigenvalues: int = 4) -
     return dataclasses.replace(out, perturbations=out.perturbations.reshape(shape))
 
 
-def _member_stiffness(topo, nodes: _Nodes, jac, kin_scale, unit):
-    """The members' contact stiffness on the node coordinates (scaled as K): minus the
-    derivative of the contact force on each node (its wrench row's jump; the tip's row
-    holds minus the force) in the kinematics of every slot."""
-    ix = topo.index
-    n_rows = ix.w_a.shape[0]
-    sign = np.ones(n_rows)
-    sign[-1] = -1.0  # the tip's row
-    row_node = nodes.of[ix.w_b]
-    K = np.zeros((nodes.count, 3, nodes.count, 3))
-    d = -sign[:, None, None, None] * jac  # (rows, 3, slots, 3)
-    np.add.at(
-        K,
-        (
-            row_node[:, None, None, None],
-            np.arange(3)[None, :, None, None],
-            nodes.of[None, None, :, None],
-            np.arange(3)[None, None, None, :],
-        ),
-        d,
-    )
+def _member_stiffness(nodes: _Nodes, hessian, kin_scale, unit):
+    """The members' contact stiffness on the node coordinates (scaled as K): the
+    energy's Hessian in the slots' kinematics, summed over the slots of each node."""
+    n = nodes.count
+    K = np.zeros((n, 3, n, 3))
+    three = np.arange(3)
+    index = (nodes.of[:, None, None, None], three[None, :, None, None])
+    index += (nodes.of[None, None, :, None], three[None, None, None, :])
+    np.add.at(K, index, hessian)
     K *= kin_scale[None, :, None, None] * kin_scale[None, None, None, :] / unit
-    return K.reshape(3 * nodes.count, 3 * nodes.count)
+    return K.reshape(3 * n, 3 * n)
 
 
 def condensed_stability(
