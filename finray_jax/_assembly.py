@@ -35,6 +35,7 @@ from ._members import MemberPlan, build_plan, node_jumps, slot_kinematics, undef
 from ._rod import TAPER_NODES, rod_model, segment_flow, segment_trajectories
 
 # Event kinds on a beam, in the order used to break ties at equal arc length.
+EDGE_PIECE = 1.0 / 16.0  # the support's edge piece, a fraction of the last piece before l_s
 _KIND_ORDER = {"support_end": -1, "dist_end": 0, "cb": 1, "point": 2, "dist_start": 3}
 
 
@@ -235,7 +236,7 @@ def build_topology(finger: Finger, mode: str) -> Topology:
         if contact is not None and b in (FRONT, BACK):
             evs = _subdivide(finger, b, evs, finger.contact.segment_length)
         elif b >= 2:
-            evs = [("sub", (i, pieces)) for i in range(1, pieces)]
+            evs = [("sub", (i, i / pieces)) for i in range(1, pieces)]
         events.append(tuple(evs))
     tapered = finger.front.tip_thickness is not None or finger.back.tip_thickness is not None
     if contact is not None:
@@ -249,9 +250,11 @@ def build_topology(finger: Finger, mode: str) -> Topology:
 
 
 def _crossbeam_pieces(finger: Finger) -> int:
-    """Equal pieces per crossbeam for member contact: none longer than twice the
-    segment length (at least 2; equal counts keep the crossbeams' solutions stacked)."""
-    longest = float(np.max(beam_lengths(finger)[2:], initial=0.0))
+    """Equal pieces per crossbeam for member contact: none longer than twice the segment
+    length (at least 2; equal counts keep the crossbeams' solutions stacked). Contact reads a
+    piece as the cubic Hermite curve through its ends, and a buckled crossbeam's S-shape
+    needs pieces this short for that curve to follow it (finray_jax._members)."""
+    longest = float(np.max(np.asarray(geometry(finger).length[2:]), initial=0.0))
     return max(2, int(np.ceil(longest / (2.0 * finger.contact.segment_length) - 1e-9)))
 
 
@@ -305,15 +308,21 @@ def _near_count(finger: Finger, events):
 
 
 def _subdivide(finger, beam, events, max_length):
-    """Insert ("sub", (k, m)) cuts so that no segment is longer than max_length: cut k of
-    m equal pieces between two neighbouring events (the count m is fixed here, from the
-    concrete design; the cut positions follow the design values)."""
+    """Insert ("sub", (k, fraction)) cuts so that no segment is longer than max_length: the
+    k-th cut after a real event, at that fraction of the way to the next real event. The
+    stretch is cut into m equal pieces (m fixed here, from the concrete design; the cut
+    positions follow the design values). The last piece before the support's end is cut
+    once more, EDGE_PIECE of it from the end: the back beam presses on the support's
+    edge over a few hundredths of a millimetre there, and that short piece's steps
+    resolve it (docs/grasping.md)."""
     length = beam_lengths(finger)[beam]
     cuts = [0.0] + [float(event_s(finger, beam, *e)) for e in events] + [length]
     out = []
     for k in range(len(events) + 1):
         m = max(1, int(np.ceil((cuts[k + 1] - cuts[k]) / max_length - 1e-9)))
-        out += [("sub", (i, m)) for i in range(1, m)]
+        out += [("sub", (i, i / m)) for i in range(1, m)]
+        if k < len(events) and events[k][0] == "support_end" and cuts[k + 1] > cuts[k]:
+            out.append(("sub", (m, 1.0 - EDGE_PIECE / m)))
         if k < len(events):
             out.append(events[k])
     return out
@@ -381,10 +390,10 @@ def _build_layout(topo: Topology, n_loads: int) -> _Layout:
         real.append(np.eye(n_anchor)[1 + b])
         cuts = list(real)
         for i, (kind, j) in enumerate(evs, start=1):
-            if kind == "sub":  # cut k of m equal pieces between two real cuts
-                k, m = j
+            if kind == "sub":  # the k-th cut after a real cut, a fraction toward the next
+                k, fraction = j
                 nxt = next(c for c in real[i + 1 :] if c is not None)
-                cuts[i] = cuts[i - k] + (nxt - cuts[i - k]) * (k / m)
+                cuts[i] = cuts[i - k] + (nxt - cuts[i - k]) * fraction
         active = np.zeros(n_loads)
         inside = b == BACK
         for k in range(len(evs) + 1):

@@ -90,11 +90,12 @@ def test_members_pressed_together_stay_apart(folded):
     (members 1 and 3, 4) with internal forces of newtons; the largest penetration
     between members where the contact reads them (its samples on the Hermite centrelines)
     is within its limit, 2 % of the thinnest member (the crossbeams' 2 mm); and on the
-    dense solution the deepest overlap is a fifth or less of the same grasp's without
-    member contact. It is not 0: where a crossbeam folds sharply at its joint (turning by
-    about a radian within one piece) the Hermite curve through the piece's ends departs
-    from the integrated centreline by a tenth of a millimetre, and contact acts on the
-    curve."""
+    dense solution (every integration step, against the other member's polyline) the
+    deepest overlap is within the same limit, where the same grasp without member contact
+    passes a crossbeam more than half a millimetre through the back beam. The dense read
+    differs from the samples by the Hermite curve's departure from the integrated
+    centreline between a piece's ends (a few micrometres on these pieces of under 10 mm)
+    and by the penetration between samples."""
     g = folded
     assert g.converged, g.solution.message
     assert g.stability is not None and g.stability.stable
@@ -110,7 +111,7 @@ def test_members_pressed_together_stay_apart(folded):
     assert float(np.max(np.asarray(off.contact.member_force))) == 0.0
     without = smallest_clearance(off.finger, off.solution)
     assert without < -0.5
-    assert smallest_clearance(g.finger, g.solution) >= 0.2 * without
+    assert smallest_clearance(g.finger, g.solution) >= -limit
 
 
 def test_member_contact_is_internal(folded):
