@@ -21,20 +21,15 @@ default grasp still lands on them). Here finray_jax solves each case at the stor
 (k, k_s) with `stiffen=False`; the same support line (the back beam's base centreline
 along its undeformed tangent, gap = distance, no half-thickness).
 
-Integration: 16 steps per 5 mm segment (the grasp's default) for original and modified;
-64 for modified_tight. The stiff support carries its load on the back beam's last
-0.02-0.06 mm before l_s (the reference resolves it: the edge's penetration converges to
-0.0050, 0.0066 and 0.026 mm at 2, 4, 6 mm), far below a 0.31 mm step, and at
-k_s = 327680 (2 and 4 mm) even the support's bending length (4 EI / k_s)^(1/4) = 0.29 mm
-is. At 16 steps finray_jax's discrete problem then has a spurious root, which both the
-default grasp and `stiffen=False` reach: normal force +3.5 % and +1.6 %, the back clamp's
-moment +9 % and +12 % off the reference at 2 and 4 mm (up to 0.6 % at 6 mm, where
-k_s = 20480), with a support penetration read at the solution points of 0 and 7e-5 mm.
-At 32 and 64 steps the differences are 0.1-0.7 %, like the default cases', and at 64 the
-support penetration agrees with the reference's to 2.5 %. So the default grasp of the tight
-case is not compared (the default cases' is, test_default_grasp_matches_opensees), and
-its k_s was chosen from those under-resolved penetrations: at that k_s the resolved
-support penetration exceeds the 0.006 mm limit at 4 and 6 mm (0.0066, 0.026 mm).
+Integration: 16 steps per 5 mm segment (the grasp's default) in every case. The stiff
+support carries its load on the back beam's last 0.02-0.06 mm before l_s (the reference
+resolves it: the edge's penetration converges to 0.0050 mm at 2 mm in the tight case),
+far below a 0.31 mm step, and at the tight case's k_s even the support's bending length
+(4 EI / k_s)^(1/4) is below a step. finray_jax cuts the last segment before l_s once
+more, a sixteenth of it from the end (finray_jax._assembly.EDGE_PIECE), and that short
+piece's 0.02 mm steps read the edge: the tight grasps at 16 steps agree with 64 steps to
+4e-4 of each output's scale. Without that piece the 16-step tight grasp has a spurious
+root, 3.5 % off in the normal force and 9-12 % in the back clamp's moment.
 
 Tolerance: 1 % of the reference value, as asked of this comparison, with two floors:
 * the reference's own error band, 3 x its Richardson mesh-error estimate (stored per
@@ -46,8 +41,8 @@ Tolerance: 1 % of the reference value, as asked of this comparison, with two flo
   finray grasp integrates 0.3 mm steps: its normal force moves by 3e-5 relative from 16
   to 128 steps, docs/grasping.md; the reference's penalty lumping at nodes converges as h^2).
 
-Why the modified cases differ more (largest: 7.3e-3 on the back clamp's moment, 5e-3 on
-the tip, 1.8e-3 on the forces) than the original (< 2e-4): their grasps shear the beams by
+Why the modified cases differ more (largest: 4.8e-3 on the back clamp's moment, 2.5e-3 on
+the tip, 1.9e-3 on the forces) than the original (< 2e-4): their grasps shear the beams by
 up to 6 % (the back beam where it presses on the support's end at l_s, the front beam at
 the cylinder; the original's stay below 0.4 %). There a corotational Timoshenko element
 (shear = the angle between chord and section, forces resolved on the chord) and
@@ -60,8 +55,8 @@ the contact, the support or the adaptor. The modified grasps depend on the penal
 rigid-contact limit (stored penalty study) lies 0.4-7 % from the outputs at finray_jax's
 (k, k_s) (0.5-1.3 % for the original adaptor).
 
-Measured (finray_jax vs the finest reference mesh; rel = (ours - theirs) / |theirs|, or
-/ scale where marked *; the pinned front base's moment is 0 on both sides):
+Measured (finray_jax's default grasps vs the finest reference mesh; rel = (ours - theirs)
+/ |theirs|, or / scale where marked *; the pinned front base's moment is 0 on both sides):
 
     case            d  output                         ours       theirs        rel
     original        2  contact_force.Fx           0.326394     0.326392  +5.87e-06
@@ -100,90 +95,90 @@ Measured (finray_jax vs the finest reference mesh; rel = (ours - theirs) / |thei
     original        6  reactions.back.Fx         -0.703176    -0.703126  -7.10e-05
     original        6  reactions.back.Fz           1.46746      1.46745  +9.47e-06
     original        6  reactions.back.My_ccw       5.32139      5.32081  +1.09e-04
-    modified        2  contact_force.Fx            9.92644      9.91627  +1.03e-03
-    modified        2  contact_force.Fz          -0.552751    -0.552188 -5.67e-05*
-    modified        2  normal_force                9.95348       9.9429  +1.06e-03
-    modified        2  tip.dx                      1.21438      1.21654  -1.78e-03
-    modified        2  tip.dz                    -0.100743    -0.100789 +3.76e-05*
-    modified        2  tip.rotation              0.0325364    0.0324667  +2.15e-03
-    modified        2  support_force.Fx           -9.05287     -9.04345  -1.04e-03
-    modified        2  support_force.Fz           -3.01762     -3.01448  -1.04e-03
-    modified        2  reactions.front.Fx       -0.0412063   -0.0411535 -5.31e-06*
-    modified        2  reactions.front.Fz        -0.259412    -0.259307 -1.06e-05*
-    modified        2  reactions.front.My_ccw            0  2.59865e-15 -2.28e-16*
-    modified        2  reactions.back.Fx         -0.832364    -0.831673 -6.95e-05*
-    modified        2  reactions.back.Fz           3.82979      3.82598  +9.96e-04
-    modified        2  reactions.back.My_ccw      -11.3971     -11.3798  -1.52e-03
-    modified        4  contact_force.Fx            14.0714      14.0478  +1.68e-03
-    modified        4  contact_force.Fz           -1.03637     -1.03091 -3.88e-04*
-    modified        4  normal_force                14.1251      14.1005  +1.75e-03
-    modified        4  tip.dx                      2.25653       2.2546  +8.56e-04
-    modified        4  tip.dz                      -0.4523    -0.450719  -3.51e-03
-    modified        4  tip.rotation              0.0638509    0.0636993  +2.38e-03
-    modified        4  support_force.Fx           -12.7447     -12.7213  -1.84e-03
-    modified        4  support_force.Fz           -4.24823     -4.24045  -1.84e-03
-    modified        4  reactions.front.Fx       -0.0328888   -0.0323909 -3.53e-05*
-    modified        4  reactions.front.Fz        -0.238165     -0.24151 +2.37e-04*
-    modified        4  reactions.front.My_ccw            0  2.86173e-15 -2.08e-16*
-    modified        4  reactions.back.Fx          -1.29385     -1.29408 +1.63e-05*
-    modified        4  reactions.back.Fz           5.52277      5.51286  +1.80e-03
-    modified        4  reactions.back.My_ccw      -13.8825     -13.7815  -7.34e-03
-    modified        6  contact_force.Fx            15.9303      15.9158  +9.12e-04
-    modified        6  contact_force.Fz           -1.58288     -1.57947 -2.13e-04*
-    modified        6  normal_force                16.0257      16.0101  +9.69e-04
-    modified        6  tip.dx                      3.05586      3.04072  +4.98e-03
-    modified        6  tip.dz                    -0.996418    -0.996815  +3.98e-04
-    modified        6  tip.rotation              0.0942734    0.0943534  -8.48e-04
-    modified        6  support_force.Fx           -14.4467      -14.437  -6.71e-04
-    modified        6  support_force.Fz           -4.81558     -4.81235  -6.71e-04
-    modified        6  reactions.front.Fx       -0.0399773   -0.0404065 +2.68e-05*
-    modified        6  reactions.front.Fz       -0.0467416   -0.0465891 -9.52e-06*
-    modified        6  reactions.front.My_ccw            0 -1.54464e-15 +9.00e-17*
-    modified        6  reactions.back.Fx           -1.4436     -1.43835 -3.28e-04*
-    modified        6  reactions.back.Fz            6.4452       6.4384  +1.06e-03
-    modified        6  reactions.back.My_ccw      -17.1103     -17.1655  +3.22e-03
-    modified_tight  2  contact_force.Fx            10.3453      10.3381  +6.98e-04
-    modified_tight  2  contact_force.Fz          -0.522917    -0.521765 -1.11e-04*
-    modified_tight  2  normal_force                10.3614      10.3541  +7.02e-04
-    modified_tight  2  tip.dx                      1.30499      1.30703  -1.56e-03
-    modified_tight  2  tip.dz                    -0.109941    -0.109835 -8.12e-05*
-    modified_tight  2  tip.rotation              0.0333628     0.033273  +2.70e-03
-    modified_tight  2  support_force.Fx           -9.44323     -9.43613  -7.53e-04
-    modified_tight  2  support_force.Fz           -3.14774     -3.14538  -7.53e-04
-    modified_tight  2  reactions.front.Fx       -0.0449363   -0.0448012 -1.30e-05*
-    modified_tight  2  reactions.front.Fz        -0.320464    -0.320458 -5.05e-07*
-    modified_tight  2  reactions.front.My_ccw            0 -1.11115e-15 +9.15e-17*
-    modified_tight  2  reactions.back.Fx          -0.85718    -0.857198 +1.80e-06*
-    modified_tight  2  reactions.back.Fz           3.99113       3.9876  +8.84e-04
-    modified_tight  2  reactions.back.My_ccw      -12.1814     -12.1478  -2.77e-03
-    modified_tight  4  contact_force.Fx            14.1848      14.1619  +1.62e-03
-    modified_tight  4  contact_force.Fz          -0.935733     -0.93078 -3.49e-04*
-    modified_tight  4  normal_force                14.2205      14.1971  +1.65e-03
-    modified_tight  4  tip.dx                      2.34828      2.34692  +5.77e-04
-    modified_tight  4  tip.dz                    -0.454102    -0.452559  -3.41e-03
-    modified_tight  4  tip.rotation              0.0636754    0.0635079  +2.64e-03
-    modified_tight  4  support_force.Fx           -12.8433     -12.8206  -1.77e-03
-    modified_tight  4  support_force.Fz            -4.2811     -4.27353  -1.77e-03
-    modified_tight  4  reactions.front.Fx       -0.0339931   -0.0335172 -3.35e-05*
-    modified_tight  4  reactions.front.Fz        -0.367608    -0.370612 +2.12e-04*
-    modified_tight  4  reactions.front.My_ccw            0  2.50599e-15 -1.79e-16*
-    modified_tight  4  reactions.back.Fx          -1.30753     -1.30776 +1.64e-05*
-    modified_tight  4  reactions.back.Fz           5.58445      5.57492  +1.71e-03
-    modified_tight  4  reactions.back.My_ccw      -14.0775     -13.9806  -6.93e-03
-    modified_tight  6  contact_force.Fx            16.0012      15.9796  +1.35e-03
-    modified_tight  6  contact_force.Fz           -1.48473     -1.48364 -6.76e-05*
-    modified_tight  6  normal_force                16.0723      16.0507  +1.35e-03
-    modified_tight  6  tip.dx                      3.15751      3.15151  +1.90e-03
-    modified_tight  6  tip.dz                    -0.994591     -0.99497  +3.80e-04
-    modified_tight  6  tip.rotation              0.0937175    0.0936953  +2.38e-04
-    modified_tight  6  support_force.Fx           -14.4963     -14.4781  -1.26e-03
-    modified_tight  6  support_force.Fz           -4.83211     -4.82604  -1.26e-03
-    modified_tight  6  reactions.front.Fx       -0.0392269   -0.0394929 +1.66e-05*
-    modified_tight  6  reactions.front.Fz        -0.170958     -0.17124 +1.76e-05*
-    modified_tight  6  reactions.front.My_ccw            0  5.81257e-15 -3.43e-16*
-    modified_tight  6  reactions.back.Fx          -1.46564     -1.46204 -2.24e-04*
-    modified_tight  6  reactions.back.Fz            6.4878      6.48092  +1.06e-03
-    modified_tight  6  reactions.back.My_ccw        -16.92       -16.94  +1.18e-03
+    modified        2  contact_force.Fx            9.92555      9.91638  +9.25e-04
+    modified        2  contact_force.Fz          -0.552747    -0.552193 -5.58e-05*
+    modified        2  normal_force                9.95258      9.94301  +9.63e-04
+    modified        2  tip.dx                      1.21431      1.21656  -1.84e-03
+    modified        2  tip.dz                    -0.100745    -0.100791 +3.76e-05*
+    modified        2  tip.rotation              0.0325381    0.0324665  +2.21e-03
+    modified        2  support_force.Fx           -9.05208     -9.04355  -9.44e-04
+    modified        2  support_force.Fz           -3.01736     -3.01452  -9.44e-04
+    modified        2  reactions.front.Fx       -0.0412086   -0.0411539 -5.49e-06*
+    modified        2  reactions.front.Fz        -0.259436    -0.259303 -1.34e-05*
+    modified        2  reactions.front.My_ccw            0  4.65993e-16 -4.09e-17*
+    modified        2  reactions.back.Fx         -0.832263    -0.831681 -5.85e-05*
+    modified        2  reactions.back.Fz           3.82954      3.82601  +9.23e-04
+    modified        2  reactions.back.My_ccw      -11.3975     -11.3799  -1.55e-03
+    modified        4  contact_force.Fx            14.0727      14.0479  +1.77e-03
+    modified        4  contact_force.Fz           -1.03445     -1.03088 -2.53e-04*
+    modified        4  normal_force                14.1263      14.1005  +1.82e-03
+    modified        4  tip.dx                      2.25465      2.25463  +9.21e-06
+    modified        4  tip.dz                    -0.451604    -0.450714  -1.97e-03
+    modified        4  tip.rotation                0.06384    0.0636983  +2.22e-03
+    modified        4  support_force.Fx           -12.7452     -12.7214  -1.87e-03
+    modified        4  support_force.Fz           -4.24839     -4.24047  -1.87e-03
+    modified        4  reactions.front.Fx       -0.0326777   -0.0323897 -2.04e-05*
+    modified        4  reactions.front.Fz         -0.23907    -0.241533 +1.75e-04*
+    modified        4  reactions.front.My_ccw            0 -1.42808e-15 +1.04e-16*
+    modified        4  reactions.back.Fx          -1.29486      -1.2941 -5.38e-05*
+    modified        4  reactions.back.Fz           5.52192      5.51289  +1.64e-03
+    modified        4  reactions.back.My_ccw       -13.847     -13.7813  -4.77e-03
+    modified        6  contact_force.Fx            15.9377       15.916  +1.36e-03
+    modified        6  contact_force.Fz           -1.58083      -1.5794 -8.91e-05*
+    modified        6  normal_force                16.0328      16.0103  +1.40e-03
+    modified        6  tip.dx                      3.04612      3.04085  +1.73e-03
+    modified        6  tip.dz                    -0.996411    -0.996792  +3.82e-04
+    modified        6  tip.rotation              0.0943786     0.094349  +3.14e-04
+    modified        6  support_force.Fx           -14.4558     -14.4372  -1.29e-03
+    modified        6  support_force.Fz           -4.81858      -4.8124  -1.29e-03
+    modified        6  reactions.front.Fx       -0.0401513   -0.0404051 +1.59e-05*
+    modified        6  reactions.front.Fz       -0.0458155    -0.046674 +5.36e-05*
+    modified        6  reactions.front.My_ccw            0 -1.51026e-16 +8.80e-18*
+    modified        6  reactions.back.Fx          -1.44179     -1.43839 -2.12e-04*
+    modified        6  reactions.back.Fz           6.44523      6.43847  +1.05e-03
+    modified        6  reactions.back.My_ccw      -17.1486     -17.1651  +9.58e-04
+    modified_tight  2  contact_force.Fx            10.3492      10.3381  +1.07e-03
+    modified_tight  2  contact_force.Fz            -0.5215    -0.521766 +2.57e-05*
+    modified_tight  2  normal_force                10.3652      10.3541  +1.07e-03
+    modified_tight  2  tip.dx                       1.3054      1.30703  -1.25e-03
+    modified_tight  2  tip.dz                    -0.109773    -0.109835 +4.67e-05*
+    modified_tight  2  tip.rotation              0.0333565     0.033273  +2.51e-03
+    modified_tight  2  support_force.Fx           -9.44649     -9.43613  -1.10e-03
+    modified_tight  2  support_force.Fz           -3.14883     -3.14538  -1.10e-03
+    modified_tight  2  reactions.front.Fx       -0.0448986   -0.0448012 -9.41e-06*
+    modified_tight  2  reactions.front.Fz        -0.321815    -0.320457 -1.31e-04*
+    modified_tight  2  reactions.front.My_ccw            0  -1.2774e-15 +1.05e-16*
+    modified_tight  2  reactions.back.Fx         -0.857808    -0.857198 -5.89e-05*
+    modified_tight  2  reactions.back.Fz           3.99215       3.9876  +1.14e-03
+    modified_tight  2  reactions.back.My_ccw      -12.1737     -12.1478  -2.13e-03
+    modified_tight  4  contact_force.Fx            14.1893      14.1644  +1.76e-03
+    modified_tight  4  contact_force.Fz          -0.933954    -0.930087 -2.72e-04*
+    modified_tight  4  normal_force                14.2254      14.1996  +1.81e-03
+    modified_tight  4  tip.dx                       2.3476      2.34775  -6.32e-05
+    modified_tight  4  tip.dz                    -0.453326    -0.452377  -2.10e-03
+    modified_tight  4  tip.rotation              0.0636131    0.0634722  +2.22e-03
+    modified_tight  4  support_force.Fx           -12.8465     -12.8226  -1.86e-03
+    modified_tight  4  support_force.Fz           -4.28216     -4.27421  -1.86e-03
+    modified_tight  4  reactions.front.Fx       -0.0337615   -0.0334739 -2.03e-05*
+    modified_tight  4  reactions.front.Fz        -0.368502     -0.37134 +2.00e-04*
+    modified_tight  4  reactions.front.My_ccw            0 -1.60836e-15 +1.15e-16*
+    modified_tight  4  reactions.back.Fx          -1.30907     -1.30832 -5.29e-05*
+    modified_tight  4  reactions.back.Fz           5.58461      5.57564  +1.61e-03
+    modified_tight  4  reactions.back.My_ccw      -14.0389     -13.9734  -4.69e-03
+    modified_tight  6  contact_force.Fx            16.0249      16.0025  +1.40e-03
+    modified_tight  6  contact_force.Fz           -1.47673     -1.47742 +4.29e-05*
+    modified_tight  6  normal_force                16.0947      16.0728  +1.36e-03
+    modified_tight  6  tip.dx                      3.17126      3.16392  +2.32e-03
+    modified_tight  6  tip.dz                     -0.99182    -0.992355  +5.39e-04
+    modified_tight  6  tip.rotation              0.0932297    0.0932126  +1.83e-04
+    modified_tight  6  support_force.Fx           -14.5151     -14.4965  -1.29e-03
+    modified_tight  6  support_force.Fz           -4.83838     -4.83216  -1.29e-03
+    modified_tight  6  reactions.front.Fx       -0.0390445   -0.0393298 +1.78e-05*
+    modified_tight  6  reactions.front.Fz        -0.180777     -0.17889 -1.17e-04*
+    modified_tight  6  reactions.front.My_ccw            0   2.2779e-15 -1.35e-16*
+    modified_tight  6  reactions.back.Fx          -1.47072     -1.46674 -2.48e-04*
+    modified_tight  6  reactions.back.Fz           6.49588      6.48847  +1.14e-03
+    modified_tight  6  reactions.back.My_ccw      -16.8645     -16.8892  +1.46e-03
 """
 
 import json
@@ -205,11 +200,10 @@ REF = json.loads(DATA.read_text())
 CASES = {  # case: (example file, contact.max_penetration, integration steps per segment)
     "original": ("grasp_finger1.toml", 0.02, 16),
     "modified": ("grasp_finger1_modified.toml", 0.02, 16),
-    "modified_tight": ("grasp_finger1_modified.toml", 0.002, 64),
+    "modified_tight": ("grasp_finger1_modified.toml", 0.002, 16),
 }
 CLOSINGS = (2.0, 4.0, 6.0)
 K_REL = 1e-4  # the default grasp's penalty stiffnesses against the stored ones
-SHEAR_RIGID_STEPS = 64  # integration steps per segment of the shear-rigid check
 REL = 0.01  # the issue's 1 %
 FLOOR = 1e-3  # of the quantity's scale (see the module docstring)
 MESH = 3.0  # x the reference's Richardson mesh-error estimate
@@ -245,11 +239,18 @@ def _integrator(case):
     return fr.Integrator(steps=CASES[case][2])
 
 
+# The cases solved at the reference's stiffnesses with stiffen=False. Not modified_tight:
+# its k_s (up to 1.0e6 N/mm^2) applied from the first touch of the support makes the
+# closing path diverge ("Nonlinear solve diverged."); the default grasp reaches the same
+# k_s through its stiffening from softer supports, and is compared at every case.
+AT_STIFFNESS = ("original", "modified")
+
+
 @pytest.fixture(scope="module")
 def grasps():
-    """finray_jax's grasp of every case, at the reference's penalty stiffnesses."""
+    """finray_jax's grasp of the AT_STIFFNESS cases at the reference's stiffnesses."""
     out = {}
-    for case in CASES:
+    for case in AT_STIFFNESS:
         for d in CLOSINGS:
             ref = REF[case][f"{d:g}"]
             g = fr.grasp(
@@ -321,10 +322,10 @@ def _fmt_rel(ours, theirs, scale):
     return f"{(ours - theirs) / scale:+.2e}*" if scale else "-"
 
 
-def test_comparison_table(grasps, capsys):
-    """The full table (printed: run with -s)."""
+def test_comparison_table(default_grasps, capsys):
+    """The full table of the default grasps (printed: run with -s)."""
     lines = [f"{'case':14s} {'d':>2s}  {'output':22s} {'ours':>12s} {'theirs':>12s} {'rel':>10s}"]
-    for (case, d), g in grasps.items():
+    for (case, d), g in default_grasps.items():
         ref = REF[case][f"{d:g}"]
         for name, ours, theirs, _, _ in _compare(g, case, d):
             if case == "original" and name.startswith("support"):
@@ -347,7 +348,7 @@ def _bad(g, case, d, group):
 
 
 @pytest.mark.parametrize("d", CLOSINGS)
-@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("case", AT_STIFFNESS)
 @pytest.mark.parametrize("group", GROUPS)
 def test_grasp_matches_opensees(grasps, case, d, group):
     bad = _bad(grasps[case, d], case, d, group)
@@ -373,11 +374,10 @@ def test_default_grasp_chooses_the_reference_stiffness(default_grasps, case):
 
 
 @pytest.mark.parametrize("d", CLOSINGS)
-@pytest.mark.parametrize("case", ["original", "modified"])
+@pytest.mark.parametrize("case", list(CASES))
 def test_default_grasp_matches_opensees(default_grasps, case, d):
     """The default grasp's own equilibrium (stiffened from the default k on its closing
-    path, 16 integration steps per segment) against the reference, same tolerances. (Not
-    for modified_tight: see the module docstring.)"""
+    path, 16 integration steps per segment) against the reference, same tolerances."""
     bad = sum((_bad(default_grasps[case, d], case, d, group) for group in GROUPS), [])
     assert not bad, bad
 
@@ -394,7 +394,6 @@ def shear_rigid_grasps():
             _at_stiffness("modified", d, finger),
             closing=d,
             stiffen=False,
-            integrator=fr.Integrator(steps=SHEAR_RIGID_STEPS),
         )
         assert g.converged
         out[d] = g
@@ -404,10 +403,9 @@ def shear_rigid_grasps():
 @pytest.mark.parametrize("d", CLOSINGS)
 def test_shear_rigid_modified_grasp_matches_opensees_closely(shear_rigid_grasps, d):
     """Without shear strain the two models are the same rod: the modified adaptor's
-    0.1-0.7 % differences (module docstring) shrink to 7e-5 once finray_jax also resolves
-    the support's edge (SHEAR_RIGID_STEPS; at 16 steps its 0.31 mm steps leave up to
-    3.5e-3 on the back clamp's moment, which the 1 % comparison covers but this check
-    would not). Tolerance 0.05 % of the value (0.01 % of the scale for small components),
+    0.1-0.7 % differences (module docstring) shrink to 7e-5, both sides resolving the
+    support's edge (here at the grasp's default 16 steps per segment, with the edge piece
+    before l_s). Tolerance 0.05 % of the value (0.01 % of the scale for small components),
     or 3 x the reference's mesh error."""
     ref = REF["modified_shear_rigid"][f"{d:g}"]
     ours = _ours(shear_rigid_grasps[d])
