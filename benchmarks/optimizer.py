@@ -50,14 +50,14 @@ class BlackBox:
         u = np.clip(np.asarray(u, float), 1e-9, 1 - 1e-9)
         z = jnp.asarray(np.log(u) - np.log1p(-u), jnp.float64)
         st, data, anchors = self.s.static, self.s.data, self.s.anchors
-        loss, aux = _objective._loss_only(z, st, data, anchors)
+        loss, aux = _objective.loss_only(z, st, data, anchors)
         if not (bool(jnp.all(aux["converged"])) and bool(aux["valid"])):
             x = np.asarray(aux["x"])
             fresh = O._reanchor(self.p, self.s, x, anchors, lambda m: None)
             if fresh is None:
                 loss, aux = jnp.inf, None
             else:
-                loss, aux = _objective._loss_only(z, st, data, fresh)
+                loss, aux = _objective.loss_only(z, st, data, fresh)
         if aux is None or not bool(jnp.all(aux["converged"])):
             obj, feas, loss = float("nan"), False, float("inf")
         else:
@@ -137,9 +137,9 @@ def main():
     setup.data = eqx.tree_at(
         lambda d: d.objective_scale, setup.data, jnp.asarray(run.initial_objective, jnp.float64)
     )
-    z0 = jnp.asarray(O._z_of(problem.lo, problem.hi, problem.x0), jnp.float64)
+    z0 = jnp.asarray(_objective.z_of(problem.lo, problem.hi, problem.x0), jnp.float64)
     t = time.perf_counter()
-    jax.block_until_ready(_objective._loss_only(z0, setup.static, setup.data, setup.anchors))
+    jax.block_until_ready(_objective.loss_only(z0, setup.static, setup.data, setup.anchors))
     results["forward_compile_s"] = time.perf_counter() - t
     u0 = (problem.x0 - problem.lo) / (problem.hi - problem.lo)
 

@@ -457,7 +457,12 @@ class _Centreline:
         return 0.5 * (self.t0 + (self.t1 - self.t0) * np.asarray(s) / self.length)
 
 
-def _centrelines(finger: Finger, geo, n: int = 101) -> tuple[_Centreline, _Centreline]:
+CENTRELINE_SAMPLES = 101  # points a main beam's centreline is sampled at (its checks)
+
+
+def _centrelines(
+    finger: Finger, geo, n: int = CENTRELINE_SAMPLES
+) -> tuple[_Centreline, _Centreline]:
     """The front and back beams' undeformed centrelines at n points each, computed as in
     `_geometry.arc_point` (a circular arc of constant precurvature, or a straight line)."""
     out = []

@@ -33,7 +33,7 @@ from ._contact import (
 )
 from ._finger import BACK, FRONT, Finger, FingerError
 from ._members import group_forces
-from ._objects import HalfPlane, _safe_norm
+from ._objects import HalfPlane, safe_norm
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import (
@@ -199,7 +199,7 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
         )
         force = force + jnp.insert(jnp.sum(obj_part, axis=0), 1, 0.0)
         support = support + jnp.insert(jnp.sum(exact - obj_part, axis=0), 1, 0.0)
-        q_exact = jnp.where(has_o & some, scale * qo[:, 0], _safe_norm(obj_part))
+        q_exact = jnp.where(has_o & some, scale * qo[:, 0], safe_norm(obj_part))
         normal = normal + jnp.sum(q_exact)
         pressures.append(q_obj)
     reactions = sol.reactions_front.force + sol.reactions_back.force + support
@@ -339,13 +339,13 @@ class GraspSolution(eqx.Module):
         return out
 
 
-def _moved(finger: Finger, displacement) -> Finger:
+def with_objects_moved(finger: Finger, displacement) -> Finger:
     # (dataclasses.replace: half the cost of eqx.tree_at, which a path pays per step)
     objs = tuple(o.moved(displacement) for o in finger.objects)
     return dataclasses.replace(finger, objects=objs)
 
 
-def _with_contact(finger: Finger, **values) -> Finger:
+def with_contact(finger: Finger, **values) -> Finger:
     """The finger with the given fields of its Contact replaced (as float arrays)."""
     c = finger.contact
     for key, v in values.items():
@@ -355,11 +355,11 @@ def _with_contact(finger: Finger, **values) -> Finger:
     return eqx.tree_at(lambda f: f.contact, finger, c)
 
 
-def _with_stiffness(finger: Finger, k, k_support=None, k_members=None) -> Finger:
+def with_stiffness(finger: Finger, k, k_support=None, k_members=None) -> Finger:
     """The finger with the objects' penalty stiffness k, the support's and the members'
     (default: the ones it has)."""
     values = {"stiffness": k, "support_stiffness": k_support, "member_stiffness": k_members}
-    return _with_contact(finger, **{key: v for key, v in values.items() if v is not None})
+    return with_contact(finger, **{key: v for key, v in values.items() if v is not None})
 
 
 def unit_direction(direction, name):
@@ -380,7 +380,7 @@ def _shape_key(topo):
 MAX_CRITICAL = 8  # critical points a stepper goes past (each costs up to 12 solves)
 
 
-class _Stepper:
+class Stepper:
     """Warm-started equilibria along a path of object displacements, with step halving.
 
     validate: check the finger (False when the caller has checked it, or for a finger
@@ -507,7 +507,7 @@ class _Stepper:
         guess = init
         for k_rung in [*(k * 4.0 ** np.arange(rungs)), k_s]:
             self.calls += 1
-            soft = _with_stiffness(finger, k, float(k_rung))
+            soft = with_stiffness(finger, k, float(k_rung))
             sol, ok, sign = _direct_core(self.topo, self.integrator, self.options, soft, guess, ref)
             if not bool(ok):
                 return failed
@@ -652,13 +652,13 @@ def grasp(
         if not np.isfinite(fa) or fa < 0:
             raise FingerError(f"actuator_force must be a non-negative force (N), got {fa}")
     # (check_objects validated the finger)
-    stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
+    stepper = Stepper(finger, mode, integrator, options, validate=False, topology=topology)
     stepper.direction = w
     ks = [float(x(finger)) for x in (stiffness, support_stiffness, member_stiffness)]
-    finger = _with_stiffness(finger, *ks)
+    finger = with_stiffness(finger, *ks)
 
     def at(t):
-        return _moved(finger, -t * w)
+        return with_objects_moved(finger, -t * w)
 
     def result(t, sol):
         res = contact_result(at(t), sol, w)
@@ -700,7 +700,7 @@ def grasp(
                 _stiffer(kk, p, lim, onset, order)
                 for kk, p, lim, onset, order in zip(old, pens, limits, onsets, orders)
             ]
-            stiffer = lambda u, k0=old, k1=new, t=t: _with_stiffness(
+            stiffer = lambda u, k0=old, k1=new, t=t: with_stiffness(
                 at(t), *(a * (b / a) ** u for a, b in zip(k0, k1))
             )
             u, sol, ok = stepper.follow(stiffer, 0.0, 1.0, sol, 1.0, 1e-3)
@@ -711,7 +711,7 @@ def grasp(
                 break
             if ok:
                 ks = new
-                finger = _with_stiffness(finger, *ks)  # (at() closes over the new finger)
+                finger = with_stiffness(finger, *ks)  # (at() closes over the new finger)
                 res = result(t, sol)
                 seen = penetrations(res)
                 for i in range(3):
@@ -781,14 +781,14 @@ def regrasp(g: GraspSolution, finger: Finger, closing=None, *, options=SolverOpt
     for designs near g's). Returns (Solution, ContactResult); check `Solution.result`.
     The penalty stiffness is g's."""
     closing = g.closing if closing is None else closing
-    moved = _moved(finger, -closing * jnp.asarray(g.direction))
-    return _resolve_near(g, moved, g.integrator, options)
+    moved = with_objects_moved(finger, -closing * jnp.asarray(g.direction))
+    return resolve_near(g, moved, g.integrator, options)
 
 
-def _resolve_near(g: GraspSolution, moved: Finger, integrator, options):
+def resolve_near(g: GraspSolution, moved: Finger, integrator, options):
     """The equilibrium of `moved` (objects where they are at the closing) with g's penalty
     stiffness, segment cuts and start: (Solution, ContactResult)."""
-    moved = _with_stiffness(moved, g.stiffness, g.support_stiffness, g.member_stiffness)
+    moved = with_stiffness(moved, g.stiffness, g.support_stiffness, g.member_stiffness)
     check_friction(g.topology.contact, moved)
     # ref_sign 0 (the sign at g's equilibrium), passed as the stepper passes it: an f64
     # array, so this call reuses the grasp's compiled program
@@ -989,14 +989,14 @@ class ReleaseTrace(eqx.Module):
     critical_points: tuple = eqx.field(static=True, default=())
 
 
-def _with_friction_raised(stepper: _Stepper, finger: Finger, mu: float, start: Solution):
+def _with_friction_raised(stepper: Stepper, finger: Finger, mu: float, start: Solution):
     """The equilibrium of `finger` (friction mu) reached from `start`, the frictionless
     one, along a path of growing friction: the onset of a pull, where full friction at once
     moves the equilibrium too far for Newton (the object's contact force turns by
     atan(mu)). Returns (solution, ok)."""
 
     def at(fraction):
-        return _with_contact(finger, friction=fraction * mu)
+        return with_contact(finger, friction=fraction * mu)
 
     reached, sol, ok = stepper.follow(at, 0.0, 1.0, start, 0.25, 1.0 / 512)
     stepper.prev = None  # (a point of this path, not of the pull's)
@@ -1029,19 +1029,19 @@ def release_force(
     w = unit_direction(pull_direction, "pull_direction")
     if not (np.isfinite(step) and step > 0):
         raise FingerError(f"step must be a positive distance (mm), got {step}")
-    finger = _with_contact(g.finger, slip_direction=w)
+    finger = with_contact(g.finger, slip_direction=w)
     if friction is not None:
         mu = float(friction)
         if not np.isfinite(mu) or mu < 0:
             raise FingerError(f"friction must be a non-negative coefficient, got {mu}")
-        finger = _with_contact(finger, friction=mu)
+        finger = with_contact(finger, friction=mu)
     if max_pull is None:
         max_pull = float(np.ptp(np.asarray(g.solution.front.position[:, 2]))) + 2 * step
-    stepper = _Stepper(finger, mode, integrator, options, validate=False, topology=topology)
+    stepper = Stepper(finger, mode, integrator, options, validate=False, topology=topology)
     stepper.direction = w
 
     def at(t):
-        return _moved(finger, t * w)
+        return with_objects_moved(finger, t * w)
 
     pulls, forces, normals = [], [], []
     t = 0.0

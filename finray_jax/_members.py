@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._contact import penalty
-from ._objects import _safe_norm
+from ._objects import safe_norm
 
 N_SAMPLES = 4  # sample points per segment, at xi = 0, 1/4, 1/2, 3/4
 XI = np.arange(N_SAMPLES) / N_SAMPLES
@@ -106,7 +106,7 @@ class MemberPlan:
 def hermite(p0, t0, p1, t1, xi):
     """Point, first and second derivative in xi of the cubic Hermite curve from p0 to p1
     with unit tangents t0, t1 scaled by the chord length (..., 2)."""
-    c = _safe_norm(p1 - p0)[..., None]
+    c = safe_norm(p1 - p0)[..., None]
     m0, m1 = c * t0, c * t1
     x = xi[..., None]
     x2, x3 = x * x, x * x * x
@@ -176,13 +176,13 @@ def _group_contacts(plan: MemberPlan, nodes: Nodes):
     n0, p0, h0 = fixed
     pp = jnp.broadcast_to(p0[:, None], cands.shape + (2,))
     xi_all, c_all = nearest(pp, *n0.ends(cands))
-    gap_all = _safe_norm(pp - c_all) - h0[:, None] - n0.half(cands, xi_all)
+    gap_all = safe_norm(pp - c_all) - h0[:, None] - n0.half(cands, xi_all)
     best = jnp.argmin(jnp.where(valid, gap_all, jnp.inf), axis=1)
     seg_b = jnp.take_along_axis(cands, best[:, None], axis=1)[:, 0]
     xi_b = jnp.take_along_axis(xi_all, best[:, None], axis=1)[:, 0]
     xi_b = _newton(p, *nodes.ends(seg_b), xi_b)
     h_b = nodes.half(seg_b, xi_b)
-    gap = _safe_norm(p - nodes.at(seg_b, xi_b)) - h_a - h_b
+    gap = safe_norm(p - nodes.at(seg_b, xi_b)) - h_a - h_b
     return gap, seg, jnp.minimum(h_a, h_b)
 
 

@@ -11,9 +11,9 @@ import numpy as np
 
 from ._finger import BACK, FRONT, Finger
 from ._grasp import (
-    _moved,
-    _with_stiffness,
     contact_result,
+    with_objects_moved,
+    with_stiffness,
 )
 from ._rod import Integrator
 from ._solution import RESULTS
@@ -31,7 +31,7 @@ CONSTRAINTS = ("min_thickness", "min_spacing", "crossing", "max_strain", "max_pr
 # --------------------------------------------------------------------------------------
 
 
-class _Static(eqx.Module):
+class Static(eqx.Module):
     """What fixes the compiled program: names, kinds, topology, solver settings."""
 
     names: tuple = eqx.field(static=True)
@@ -46,7 +46,7 @@ class _Static(eqx.Module):
     options: SolverOptions
 
 
-class _Data(eqx.Module):
+class Data(eqx.Module):
     """The problem's numbers (arrays: changing them never recompiles)."""
 
     bases: Finger  # the base finger of every object, stacked on a leading axis
@@ -60,7 +60,7 @@ class _Data(eqx.Module):
     shift: jax.Array  # relative inward shift of every constraint in the penalty
 
 
-class _Anchors(eqx.Module):
+class Anchors(eqx.Module):
     """Per object (leading axis): the warm start of Newton and the grasp's state."""
 
     unknowns: jax.Array
@@ -69,25 +69,27 @@ class _Anchors(eqx.Module):
     pull: jax.Array  # the peak pull t* (holding force; 0 for the contact force)
 
 
-def _design_of(data: _Data, z):
+def design_of(data: Data, z):
     return data.lo + (data.hi - data.lo) * jax.nn.sigmoid(z)
 
 
-def _z_of(data_lo, data_hi, x):
+def z_of(data_lo, data_hi, x):
     u = (np.asarray(x, float) - data_lo) / (data_hi - data_lo)
     return np.log(u) - np.log1p(-u)
 
 
-def _values(static: _Static, x) -> dict:
+def _values(static: Static, x) -> dict:
     return {n: x[j] for j, n in enumerate(static.names)}
 
 
-def _solve_one(static: _Static, base: Finger, x, unknowns, stiffness, closing, pull):
+def _solve_one(static: Static, base: Finger, x, unknowns, stiffness, closing, pull):
     """The grasp of one object at design x: (objective value, solution, moved finger,
     pressures front/back)."""
     finger = _set_design(base, _values(static, x))
     w, e = jnp.asarray(static.direction), jnp.asarray(static.pull)
-    moved = _with_stiffness(_moved(finger, -closing * w + pull * e), stiffness[0], stiffness[1])
+    moved = with_stiffness(
+        with_objects_moved(finger, -closing * w + pull * e), stiffness[0], stiffness[1]
+    )
     sol, _, _ = _direct_core(static.topology, static.integrator, static.options, moved, unknowns)
     res = contact_result(moved, sol, w)
     if static.objective == "contact_force":
@@ -97,7 +99,7 @@ def _solve_one(static: _Static, base: Finger, x, unknowns, stiffness, closing, p
     return value, sol, moved, res.pressure_front, res.pressure_back
 
 
-def _design_margins(static: _Static, data: _Data, finger: Finger):
+def _design_margins(static: Static, data: Data, finger: Finger):
     """Relative margins (arrays; >= 0 is feasible) and true margins (physical units) of
     the constraints that depend on the design alone."""
     rel, true = {}, {}
@@ -122,7 +124,7 @@ def _design_margins(static: _Static, data: _Data, finger: Finger):
     return rel, true
 
 
-def _state_margins(static: _Static, data: _Data, fingers, sols, pf, pb):
+def _state_margins(static: Static, data: Data, fingers, sols, pf, pb):
     """Strain and pressure margins over every point of every object's grasp (vmapped
     inputs: leading axis = object)."""
     rel, true = {}, {}
@@ -145,7 +147,7 @@ def _state_margins(static: _Static, data: _Data, fingers, sols, pf, pb):
     return rel, true
 
 
-def _aggregate(static: _Static, data: _Data, values):
+def _aggregate(static: Static, data: Data, values):
     """(smooth aggregate for the loss, true aggregate to report)."""
     if static.aggregate == "mean" or values.shape[0] == 1:
         m = jnp.mean(values) if static.aggregate == "mean" else values[0]
@@ -155,8 +157,8 @@ def _aggregate(static: _Static, data: _Data, values):
     return smooth, jnp.min(values)
 
 
-def _loss(z, static: _Static, data: _Data, anchors: _Anchors):
-    x = _design_of(data, z)
+def _loss(z, static: Static, data: Data, anchors: Anchors):
+    x = design_of(data, z)
     solve = lambda b, u, k, d, t: _solve_one(static, b, x, u, k, d, t)
     values, sols, moved, pf, pb = jax.vmap(solve)(
         data.bases, anchors.unknowns, anchors.stiffness, anchors.closing, anchors.pull
@@ -187,14 +189,14 @@ def _loss(z, static: _Static, data: _Data, anchors: _Anchors):
     return loss, aux
 
 
-_loss_and_grad = eqx.filter_jit(jax.value_and_grad(_loss, has_aux=True))
-_loss_only = eqx.filter_jit(_loss)
+loss_and_grad = eqx.filter_jit(jax.value_and_grad(_loss, has_aux=True))
+loss_only = eqx.filter_jit(_loss)
 
 
 @eqx.filter_jit
-def _pull_slope(z, static: _Static, data: _Data, anchors: _Anchors):
+def pull_slope(z, static: Static, data: Data, anchors: Anchors):
     """Per object: F(t), dF/dt at the anchors' pulls, and the equilibria (holding force)."""
-    x = _design_of(data, z)
+    x = design_of(data, z)
 
     def one(b, u, k, d, t):
         def f(t):
@@ -207,7 +209,3 @@ def _pull_slope(z, static: _Static, data: _Data, anchors: _Anchors):
     return jax.vmap(one)(
         data.bases, anchors.unknowns, anchors.stiffness, anchors.closing, anchors.pull
     )
-
-
-def _stack(trees):
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)

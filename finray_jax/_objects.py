@@ -27,7 +27,7 @@ from jaxtyping import Array, Float
 from ._types import as_float
 
 
-def _safe_norm(v, axis=-1):
+def safe_norm(v, axis=-1):
     """|v| with a finite gradient at v = 0."""
     sq = jnp.sum(v * v, axis=axis)
     small = sq < 1e-30
@@ -386,7 +386,7 @@ class HalfPlane(AbstractObject):
         return dataclasses.replace(self, point=self.point + as_float(displacement))
 
     def params(self):
-        return jnp.concatenate([self.point, self.normal / _safe_norm(self.normal)])
+        return jnp.concatenate([self.point, self.normal / safe_norm(self.normal)])
 
     @classmethod
     def distance_and_normal(cls, q, x, z):

@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from ._grasp import GraspSolution, _Stepper, _with_stiffness, contact_result
+from ._grasp import GraspSolution, Stepper, contact_result, with_stiffness
 from ._solve import SolverOptions
 
 OUTPUTS = {
@@ -93,14 +93,14 @@ def rigid_contact_estimate(
     stiffness)."""
     factors = (1.0, RATIO, RATIO**2)
     k, k_s = float(g.stiffness), float(g.support_stiffness)
-    stepper = _Stepper(
+    stepper = Stepper(
         g.finger, "planar", g.integrator, options, validate=False, topology=g.topology
     )
     w = g.direction
     sol = g.solution
     results = [(sol, g.contact)]
     for lo, hi in zip(factors[:-1], factors[1:]):
-        path = lambda u, lo=lo, hi=hi: _with_stiffness(
+        path = lambda u, lo=lo, hi=hi: with_stiffness(
             g.finger, k * lo * (hi / lo) ** u, k_s * lo * (hi / lo) ** u
         )
         t, sol, ok = stepper.follow(path, 0.0, 1.0, sol, 1.0, 1e-3)

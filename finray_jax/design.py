@@ -63,7 +63,6 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
-import inspect
 import re
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
@@ -72,7 +71,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._finger import BACK, FRONT, Finger, _centrelines
+from ._finger import BACK, CENTRELINE_SAMPLES, FRONT, Finger
 from ._geometry import arc_point, geometry, thickness_at, xz
 from ._types import as_float
 
@@ -360,7 +359,7 @@ design_valid_jit = eqx.filter_jit(design_valid)
 # tested in tests/test_design.py.
 # --------------------------------------------------------------------------------------
 
-_SAMPLES = inspect.signature(_centrelines).parameters["n"].default  # 101 points a beam
+_SAMPLES = CENTRELINE_SAMPLES  # 101 points a beam
 
 
 class _Lines(NamedTuple):

@@ -21,7 +21,7 @@ __all__ = ["DesignVar", "OptimizeError", "OptimizeProblem", "load_optimize", "lo
 from ._objective import AGGREGATES, CONSTRAINTS, OBJECTIVES
 
 OPTIMIZERS = ("adam", "sgd")
-_FORMAT = 1  # bump when the meaning of an optimisation file or its CSV changes
+FORMAT = 1  # bump when the meaning of an optimisation file or its CSV changes
 
 
 class OptimizeError(fio.FingerFileError):
@@ -139,18 +139,18 @@ _HELP = {
 
 def loads_optimize(text: str, *, source: str = "<string>", base_dir: str = ".") -> OptimizeProblem:
     """Read an optimisation from TOML text; the finger path is relative to `base_dir`."""
-    return fio._loads_study(text, _parse, OptimizeError, source, base_dir)
+    return fio.loads_study(text, _parse, OptimizeError, source, base_dir)
 
 
 def load_optimize(path) -> OptimizeProblem:
     """Read an optimisation file. Raises OptimizeError naming the key and the value."""
-    return fio._load_study(path, loads_optimize, "optimisation", OptimizeError)
+    return fio.load_study(path, loads_optimize, "optimisation", OptimizeError)
 
 
 def _parse(doc, r, source, base_dir) -> OptimizeProblem:
     r.table(doc, "", _TOP)
-    fio._require(r, doc, "", ("finger", "design"), _HELP)
-    finger, settings, finger_path, finger_hash = fio._base_finger(doc, r, base_dir)
+    fio.require_keys(r, doc, "", ("finger", "design"), _HELP)
+    finger, settings, finger_path, finger_hash = fio.base_finger(doc, r, base_dir)
     gs = settings.grasp
     kw = {}
     kw["objective"] = r.string(doc.get("objective", "contact_force"), "objective", OBJECTIVES)
@@ -215,7 +215,7 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
     for i, tbl in enumerate(tables):
         p = f"design[{i}]"
         r.table(tbl, p, ("name", "bounds", "initial"))
-        fio._require(r, tbl, p, ("name", "bounds"), _HELP)
+        fio.require_keys(r, tbl, p, ("name", "bounds"), _HELP)
         name = r.string(tbl["name"], f"{p}.name")
         try:
             check_design_names(finger, [name], scalar=True)
@@ -304,7 +304,7 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
                 cons["min_thickness"],
             )
     key = {
-        "format": _FORMAT,
+        "format": FORMAT,
         "finger_sha256": finger_hash,
         **{k: (list(v) if isinstance(v, tuple) else v) for k, v in kw.items() if k != "design"},
         "design": [[d.name, d.lo, d.hi, d.initial] for d in design],
@@ -347,7 +347,7 @@ def _check_bounds(finger: Finger, name, lo, hi, optimised, error, path, value) -
             raise error(
                 path,
                 f"{name} = {x!r} (the bound {which}) makes the finger invalid: "
-                f"{fio._toml_paths(str(e))}; every value in [lo, hi] must give a valid finger",
+                f"{fio.toml_paths(str(e))}; every value in [lo, hi] must give a valid finger",
                 value,
             ) from None
 

@@ -51,12 +51,12 @@ from ._contact import friction_may_act, with_friction
 from ._finger import Finger
 from ._grasp import (
     GraspSolution,
-    _moved,
-    _Stepper,
-    _with_contact,
-    _with_stiffness,
+    Stepper,
     grasp,
     release_force,
+    with_contact,
+    with_objects_moved,
+    with_stiffness,
 )
 from ._solution import RESULTS
 from ._solve import SolverOptions
@@ -76,17 +76,16 @@ __all__ = [
 from ._objective import (
     CONSTRAINTS,
     OBJECTIVES,
-    _Anchors,
-    _Data,
-    _design_of,
-    _loss_and_grad,
-    _pull_slope,
-    _stack,
-    _Static,
-    _z_of,
+    Anchors,
+    Data,
+    Static,
+    design_of,
+    loss_and_grad,
+    pull_slope,
+    z_of,
 )
 from .optimize_file import (
-    _FORMAT,
+    FORMAT,
     OptimizeError,
     OptimizeProblem,
     load_optimize,
@@ -108,14 +107,14 @@ class _Setup:
     """Everything the loop needs: the compiled program's static part, the numbers, and
     the initial grasps (for the 'before' figure)."""
 
-    static: _Static
-    data: _Data
-    anchors: _Anchors
+    static: Static
+    data: Data
+    anchors: Anchors
     grasps: list
 
 
 def _pull_finger(problem: OptimizeProblem, finger: Finger) -> Finger:
-    return _with_contact(finger, friction=problem.friction, slip_direction=problem.pull_direction)
+    return with_contact(finger, friction=problem.friction, slip_direction=problem.pull_direction)
 
 
 def _initial_grasps(problem: OptimizeProblem, fingers, say):
@@ -155,8 +154,8 @@ def _peak_pull(problem: OptimizeProblem, g: GraspSolution, i: int, say):
         )
     finger = _pull_finger(problem, g.finger)
     e = np.asarray(problem.pull_direction, float)
-    st = _Stepper(finger, "planar", g.integrator, SolverOptions(), False)
-    at = lambda t: _moved(finger, t * e)
+    st = Stepper(finger, "planar", g.integrator, SolverOptions(), False)
+    at = lambda t: with_objects_moved(finger, t * e)
     t, sol, ok = st.follow(at, 0.0, tr.peak_pull, g.solution, problem.pull_step, 1e-4)
     if not ok:
         raise OptimizeError(
@@ -179,7 +178,7 @@ def _setup(problem: OptimizeProblem, say=lambda m: None) -> _Setup:
     bases = fingers
     if problem.objective == "holding_force":
         bases = [_pull_finger(problem, f) for f in fingers]
-    anchors = _Anchors(
+    anchors = Anchors(
         unknowns=jnp.stack(unknowns),
         stiffness=jnp.asarray([[float(g.stiffness), float(g.support_stiffness)] for g in gs]),
         closing=jnp.asarray([float(g.closing) for g in gs], jnp.float64),
@@ -188,7 +187,7 @@ def _setup(problem: OptimizeProblem, say=lambda m: None) -> _Setup:
     topology = gs[0].topology  # built while closing: frictionless
     if friction_may_act(bases[0].contact):
         topology = with_friction(topology)
-    static = _Static(
+    static = Static(
         names=problem.names,
         objective=problem.objective,
         aggregate=problem.aggregate,
@@ -212,8 +211,8 @@ def _setup(problem: OptimizeProblem, say=lambda m: None) -> _Setup:
             limits[j] = problem.constraints[c]
             if limits[j] > 0:
                 scales[j] = limits[j]
-    data = _Data(
-        bases=_stack(bases),
+    data = Data(
+        bases=jax.tree_util.tree_map(lambda *a: jnp.stack(a), *bases),  # (objects, ...)
         lo=jnp.asarray(problem.lo, jnp.float64),
         hi=jnp.asarray(problem.hi, jnp.float64),
         limits=jnp.asarray(limits, jnp.float64),
@@ -231,13 +230,13 @@ def _setup(problem: OptimizeProblem, say=lambda m: None) -> _Setup:
 # --------------------------------------------------------------------------------------
 
 
-def _refine_pull(setup: _Setup, z, anchors: _Anchors, step: float, max_iter: int = 6):
+def _refine_pull(setup: _Setup, z, anchors: Anchors, step: float, max_iter: int = 6):
     """Move every object's pull t to the peak of F(t) at design z (Newton on dF/dt = 0,
     or t = 0 where F falls from the onset of the pull: there friction holds hardest;
     d2F/dt2 by a difference of dF/dt; a move whose solve fails is halved); returns the
     new anchors, or None if the solves keep failing."""
     st, data = setup.static, setup.data
-    v, s, u, ok = _pull_slope(z, st, data, anchors)
+    v, s, u, ok = pull_slope(z, st, data, anchors)
     if not bool(jnp.all(ok)):
         return None
     anchors = eqx.tree_at(lambda a: a.unknowns, anchors, u)
@@ -248,7 +247,7 @@ def _refine_pull(setup: _Setup, z, anchors: _Anchors, step: float, max_iter: int
         if bool(jnp.all(interior | at_start)):
             break
         probe = eqx.tree_at(lambda a: a.pull, anchors, anchors.pull + dt)
-        _, s2, _, ok2 = _pull_slope(z, st, data, probe)
+        _, s2, _, ok2 = pull_slope(z, st, data, probe)
         if not bool(jnp.all(ok2)):
             return None
         curv = (s2 - s) / dt
@@ -257,7 +256,7 @@ def _refine_pull(setup: _Setup, z, anchors: _Anchors, step: float, max_iter: int
         move = jnp.clip(move, -step, step)
         for _halving in range(MAX_HALVINGS):  # a sharp peak (friction): shorter moves
             trial = eqx.tree_at(lambda a: a.pull, anchors, jnp.maximum(anchors.pull + move, 0.0))
-            v2, s2, u, ok = _pull_slope(z, st, data, trial)
+            v2, s2, u, ok = pull_slope(z, st, data, trial)
             if bool(jnp.all(ok)):
                 break
             move = 0.5 * move
@@ -268,7 +267,7 @@ def _refine_pull(setup: _Setup, z, anchors: _Anchors, step: float, max_iter: int
     return anchors
 
 
-def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: _Anchors, say):
+def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: Anchors, say):
     """Fresh warm starts at design x by full grasps (and pull traces) at the anchors'
     penalty stiffness; None if one fails. They are solved on the initial grasps' segment
     table, as the loss is: the design's own cuts can differ (Finger-1's support length near
@@ -279,7 +278,7 @@ def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: _Anchors, say
     for i, base in enumerate(fingers):
         say(f"re-grasping object {i} (the warm-started Newton solve did not converge)")
         f = _set_design(base, dict(zip(problem.names, np.asarray(x).tolist())))
-        f = _with_stiffness(f, *anchors.stiffness[i])
+        f = with_stiffness(f, *anchors.stiffness[i])
         g = grasp(
             f,
             float(anchors.closing[i]),
@@ -293,9 +292,9 @@ def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: _Anchors, say
         if problem.objective == "holding_force":
             pf = _pull_finger(problem, g.finger)
             e = np.asarray(setup.static.pull)
-            stp = _Stepper(pf, "planar", g.integrator, SolverOptions(), False, topology=g.topology)
+            stp = Stepper(pf, "planar", g.integrator, SolverOptions(), False, topology=g.topology)
             t, sol, ok = stp.follow(
-                lambda t, pf=pf, e=e: _moved(pf, t * e),
+                lambda t, pf=pf, e=e: with_objects_moved(pf, t * e),
                 0.0,
                 float(anchors.pull[i]),
                 g.solution,
@@ -314,12 +313,12 @@ def _reanchor(problem: OptimizeProblem, setup: _Setup, x, anchors: _Anchors, say
     )
 
 
-def _evaluate(problem, setup: _Setup, z, anchors: _Anchors, say):
+def _evaluate(problem, setup: _Setup, z, anchors: Anchors, say):
     """Loss, aux and gradient at z, warm started from `anchors` (re-anchored by full grasps
     if that fails). Returns (loss, aux, grad, anchors) or None if z cannot be solved or
     leaves the topology."""
     st, data = setup.static, setup.data
-    x = _design_of(data, z)
+    x = design_of(data, z)
     if not bool(design_valid_jit(problem.designed(np.asarray(x)), st.topology)):
         return None
     for attempt in range(2):
@@ -329,7 +328,7 @@ def _evaluate(problem, setup: _Setup, z, anchors: _Anchors, say):
             ok = refined is not None
             anchors = refined if ok else anchors
         if ok:
-            (loss, aux), grad = _loss_and_grad(z, st, data, anchors)
+            (loss, aux), grad = loss_and_grad(z, st, data, anchors)
             ok = bool(jnp.all(aux["converged"])) and bool(aux["valid"])
             ok = ok and bool(jnp.isfinite(loss)) and bool(jnp.all(jnp.isfinite(grad)))
             if ok:
@@ -395,7 +394,7 @@ def _load_checkpoint(problem: OptimizeProblem, out_dir: str):
                 "use another --out"
             )
         return None
-    return fio._read_run_record(
+    return fio.read_run_record(
         path,
         out_dir,
         OptimizeError,
@@ -455,12 +454,12 @@ def _stop_reason(problem: OptimizeProblem, state: dict) -> str:
 
 def _save_checkpoint(problem: OptimizeProblem, out_dir: str, state: dict) -> None:
     record = {
-        "format": _FORMAT,
+        "format": FORMAT,
         "hash": problem.digest,
         "source": os.path.abspath(problem.source),
         "state": state,
     }
-    fio._write_atomic(os.path.join(out_dir, CHECKPOINT), json.dumps(record) + "\n")
+    fio.write_atomic(os.path.join(out_dir, CHECKPOINT), json.dumps(record) + "\n")
 
 
 def _truncate_rows(csv_path: str, header: str, rows: int) -> None:
@@ -487,14 +486,14 @@ def _truncate_rows(csv_path: str, header: str, rows: int) -> None:
             os.fsync(fh.fileno())
 
 
-def _anchors_json(a: _Anchors) -> dict:
+def _anchors_json(a: Anchors) -> dict:
     return {
         k: np.asarray(getattr(a, k)).tolist() for k in ("unknowns", "stiffness", "closing", "pull")
     }
 
 
-def _anchors_from(d: dict) -> _Anchors:
-    return _Anchors(
+def _anchors_from(d: dict) -> Anchors:
+    return Anchors(
         **{k: jnp.asarray(d[k], jnp.float64) for k in ("unknowns", "stiffness", "closing", "pull")}
     )
 
@@ -532,7 +531,7 @@ def run_optimize(
     opt = _optimizer(problem)
     lo, hi = problem.lo, problem.hi
     if ck is None:
-        z = jnp.asarray(_z_of(lo, hi, problem.x0), jnp.float64)
+        z = jnp.asarray(z_of(lo, hi, problem.x0), jnp.float64)
         anchors = setup.anchors
         probe = _evaluate(problem, setup, z, anchors, say)
         if probe is None:
@@ -556,7 +555,7 @@ def run_optimize(
             "done": False,
             "reason": "",
         }
-        fio._write_atomic(csv_path, header)
+        fio.write_atomic(csv_path, header)
         _save_checkpoint(problem, out_dir, state)
     else:
         state = ck["state"]
@@ -630,7 +629,7 @@ def run_optimize(
                 "margins": margins,
             }
             for i, text in enumerate(_best_tomls(problem, x, k, objective, anchors)):
-                fio._write_atomic(_best_path(best_path, i), text)
+                fio.write_atomic(_best_path(best_path, i), text)
         still = feasible and _unchanged(problem, objective, state["last"])
         state["stall"] = state["stall"] + 1 if still else 0
         state["last"] = objective
@@ -701,7 +700,7 @@ def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, a
     n_obj = 1 if problem.diameters is None else len(problem.diameters)
     designed = problem.designed(x)
     if problem.objective == "holding_force":
-        designed = _with_contact(designed, friction=problem.friction)
+        designed = with_contact(designed, friction=problem.friction)
     w = problem.direction
     grasp_lines = [
         "",
@@ -752,7 +751,7 @@ def _write_result(problem: OptimizeProblem, run: OptimizeRun, out_dir: str, wall
         "reason": run.reason,
         "finray_jax_version": __version__,
     }
-    fio._write_atomic(os.path.join(out_dir, RESULT_JSON), json.dumps(payload, indent=2) + "\n")
+    fio.write_atomic(os.path.join(out_dir, RESULT_JSON), json.dumps(payload, indent=2) + "\n")
 
 
 def read_progress(csv_path) -> dict[str, np.ndarray]:
@@ -769,7 +768,7 @@ def _final_grasps(problem: OptimizeProblem, setup: _Setup, x):
     out = []
     for i, base in enumerate(problem.object_fingers()):
         f = _set_design(base, dict(zip(problem.names, np.asarray(x, float).tolist())))
-        f = _with_stiffness(f, *setup.anchors.stiffness[i])
+        f = with_stiffness(f, *setup.anchors.stiffness[i])
         out.append(grasp(f, problem.closing, direction=problem.direction, stiffen=False))
     return out
 

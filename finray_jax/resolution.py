@@ -26,7 +26,7 @@ import numpy as np
 
 from ._finger import Finger
 from ._geometry import geometry
-from ._grasp import GraspSolution, _resolve_near
+from ._grasp import GraspSolution, resolve_near
 from ._rod import Integrator
 from ._solution import Solution
 from ._solve import SolverOptions, prepare, solve_finger
@@ -152,7 +152,7 @@ class ResolutionCheck:
 
     def to_dict(self) -> dict:
         """Plain values (JSON-ready), the solutions left out."""
-        from .io import _plain  # (NaN -> None, tuples -> lists)
+        from .io import to_plain  # (NaN -> None, tuples -> lists)
 
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         del out["solutions"]
@@ -160,7 +160,7 @@ class ResolutionCheck:
         out["reliable"] = self.reliable
         out["resolved"] = self.resolved
         out["message"] = self.message
-        return _plain(out)
+        return to_plain(out)
 
 
 def _shared_points(fine_len: int, n: int) -> np.ndarray:
@@ -272,7 +272,7 @@ def check_grasp_resolution(
     sols, normals = [g.solution], [float(g.contact.normal_force)]
     for k in (2, 4):
         integ = dataclasses.replace(g.integrator, steps=k * n)
-        sol, contact = _resolve_near(g, g.finger, integ, options)
+        sol, contact = resolve_near(g, g.finger, integ, options)
         sols.append(sol)
         normals.append(float(contact.normal_force))
     return _estimate(sols, n, p, rtol, float(geometry(g.finger).L), normals)

@@ -270,7 +270,7 @@ def _write_record(path, rec: dict) -> None:
     parent = os.path.dirname(path)
     if parent:
         os.makedirs(parent, exist_ok=True)
-    fio._write_atomic(path, fio._json_text(fio._plain(rec)) + "\n")
+    fio.write_atomic(path, fio.json_text(fio.to_plain(rec)) + "\n")
 
 
 def clamp_study(

@@ -129,18 +129,18 @@ _HELP = {
 
 def loads_sweep(text: str, *, source: str = "<string>", base_dir: str = ".") -> Sweep:
     """Read a sweep from TOML text; the finger path is relative to `base_dir`."""
-    return fio._loads_study(text, _parse, SweepError, source, base_dir)
+    return fio.loads_study(text, _parse, SweepError, source, base_dir)
 
 
 def load_sweep(path) -> Sweep:
     """Read a sweep file. Raises SweepError (a FingerFileError) naming the key and value."""
-    return fio._load_study(path, loads_sweep, "sweep", SweepError)
+    return fio.load_study(path, loads_sweep, "sweep", SweepError)
 
 
 def _parse(doc, r, source, base_dir) -> Sweep:
     r.table(doc, "", _TOP)
-    fio._require(r, doc, "", ("finger", "outputs", "sampling", "design"), _HELP)
-    finger, settings, finger_path, finger_hash = fio._base_finger(doc, r, base_dir)
+    fio.require_keys(r, doc, "", ("finger", "outputs", "sampling", "design"), _HELP)
+    finger, settings, finger_path, finger_hash = fio.base_finger(doc, r, base_dir)
 
     mode = r.string(doc.get("mode", settings.mode), "mode", fio.MODES)
     mode = resolve_mode(finger, mode)
@@ -175,11 +175,11 @@ def _parse(doc, r, source, base_dir) -> Sweep:
             raise r.error(f"outputs[{i}]", "listed twice", name)
 
     smp = r.table(doc["sampling"], "sampling", ("kind", "n", "seed"))
-    fio._require(r, smp, "sampling", ("kind",), _HELP)
+    fio.require_keys(r, smp, "sampling", ("kind",), _HELP)
     kind = r.string(smp["kind"], "sampling.kind", SAMPLINGS)
     n_random, seed = 0, 0
     if kind == "random":
-        fio._require(r, smp, "sampling", ("n",), _HELP)
+        fio.require_keys(r, smp, "sampling", ("n",), _HELP)
         n_random = r.integer(smp["n"], "sampling.n", minimum=1)
         seed = r.integer(smp.get("seed", 0), "sampling.seed", minimum=0)
     else:
@@ -191,7 +191,9 @@ def _parse(doc, r, source, base_dir) -> Sweep:
     for i, tbl in enumerate(r.array_of_tables(doc["design"], "design")):
         p = f"design[{i}]"
         r.table(tbl, p, ("name", "range", "points"))
-        fio._require(r, tbl, p, ("name", "range") + (("points",) if kind == "grid" else ()), _HELP)
+        fio.require_keys(
+            r, tbl, p, ("name", "range") + (("points",) if kind == "grid" else ()), _HELP
+        )
         name = r.string(tbl["name"], f"{p}.name")
         try:
             check_design_names(finger, [name], scalar=True)
@@ -271,7 +273,7 @@ def _check_manifest(sweep: Sweep, out_dir: str) -> str:
     in the manifest when another file with the same hash continues it)."""
     path = os.path.join(out_dir, MANIFEST)
     if os.path.exists(path):
-        record = fio._read_run_record(
+        record = fio.read_run_record(
             path,
             out_dir,
             SweepError,
@@ -353,7 +355,7 @@ def _resume(sweep: Sweep, csv_path: str, designs, diagnose: Diagnosis) -> int:
     column existed is rewritten with it (atomically), so the sweep continues."""
     header = _line(sweep.columns)
     if not os.path.exists(csv_path):
-        fio._write_atomic(csv_path, header)
+        fio.write_atomic(csv_path, header)
         return 0
     with open(csv_path, "rb") as fh:
         data = fh.read()
@@ -391,7 +393,7 @@ def _resume(sweep: Sweep, csv_path: str, designs, diagnose: Diagnosis) -> int:
         for k, line in enumerate(lines[1 : done + 1]):
             fields = _fields(line)
             rows.append(_line([*fields, _legacy_reason(fields[status], k, designs, diagnose)]))
-        fio._write_atomic(csv_path, header + "".join(rows))
+        fio.write_atomic(csv_path, header + "".join(rows))
         return done
     size = len("".join(lines[: done + 1]).encode("utf-8"))
     if size != len(data):
@@ -489,7 +491,7 @@ def run_sweep(
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     source = _check_manifest(sweep, out_dir)
-    fio._write_atomic(
+    fio.write_atomic(
         os.path.join(out_dir, MANIFEST),
         json.dumps(_manifest(sweep, False, source), indent=2) + "\n",
     )
@@ -535,7 +537,7 @@ def run_sweep(
     figure = None
     data = read_results(csv_path)
     if done == sweep.size:
-        fio._write_atomic(
+        fio.write_atomic(
             os.path.join(out_dir, MANIFEST),
             json.dumps(_manifest(sweep, True, source), indent=2) + "\n",
         )

@@ -13,7 +13,7 @@ from helpers import contact_wrench, global_balance, without_jacobian
 import finray_jax as fr
 import finray_jax.io
 from finray_jax._contact import penalty
-from finray_jax._grasp import _closing_step_cap, _Stepper, _with_stiffness
+from finray_jax._grasp import Stepper, _closing_step_cap, with_stiffness
 from finray_jax._solve import _direct_core
 
 # ---------------------------------------------------------------------------------------
@@ -245,7 +245,7 @@ def test_tip_pressed_onto_a_wall_converges_to_rigid_contact():
     errors = []
     for k in (0.01, 0.1, 1.0):
         finger = _cantilever_finger([wall], k, [load])
-        stepper = _Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
+        stepper = Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
         t, sol, ok = stepper.follow(finger.scale_loads, 0.0, 1.0, None, 0.25, 1e-4)
         assert ok and t == 1.0
         res = fr.contact_result(finger, sol, (-1.0, 0.0))
@@ -337,7 +337,7 @@ def test_contact_beyond_the_near_segments_is_found():
     np.testing.assert_allclose(solutions[16].unknowns, full.unknowns, rtol=0, atol=1e-9)
     # The path solver of grasp and release_force goes on with every segment instead.
     finger = _with_near(base, 8)
-    stepper = _Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
+    stepper = Stepper(finger, "planar", fr.Integrator(steps=16), fr.SolverOptions())
     _, sol, ok = stepper.follow(finger.scale_loads, 0.0, 1.0, None, 1.0, 1.0)
     assert ok and stepper.topo.contact.near is None
     np.testing.assert_allclose(sol.unknowns, full.unknowns, rtol=0, atol=1e-9)
@@ -642,7 +642,7 @@ def test_friction_is_left_out_only_where_it_cannot_act(grasps):
     original, _ = grasps
 
     def solve(finger, topology):
-        st = _Stepper(finger, "planar", original.integrator, fr.SolverOptions(), False, topology)
+        st = Stepper(finger, "planar", original.integrator, fr.SolverOptions(), False, topology)
         sol, ok = st.solve(finger, original.solution.unknowns)
         assert ok
         return st.topo, sol.unknowns
@@ -718,9 +718,9 @@ def test_release_trace_without_a_solved_point_reports_no_holding_force(grasps, m
     from finray_jax import _grasp
 
     original, _ = grasps
-    monkeypatch.setattr(_grasp._Stepper, "solve", lambda self, f, i: (None, False))
+    monkeypatch.setattr(_grasp.Stepper, "solve", lambda self, f, i: (None, False))
     monkeypatch.setattr(
-        _grasp._Stepper, "follow", lambda self, at, t0, t1, init, *a, **k: (t0, init, False)
+        _grasp.Stepper, "follow", lambda self, at, t0, t1, init, *a, **k: (t0, init, False)
     )
     tr = fr.release_force(original, step=4.0, friction=0.3)
     assert tr.pull.size == 0 and not tr.complete
@@ -748,7 +748,7 @@ def test_chord_steps_with_contact_reach_newtons_root(finger1, grasps):
     `reuse_jacobian=False` compiles another 40 s.)"""
     original, _ = grasps
     chord, c_chord = fr.regrasp(original, finger1, 5.1)
-    stiff = _with_stiffness(finger1, original.stiffness)
+    stiff = with_stiffness(finger1, original.stiffness)
     scratch = fr.grasp(stiff, 5.1, stiffen=False, topology=original.topology)
     assert chord.status == scratch.solution.status == "converged"
     assert float(chord.max_residual) < 1e-8 and float(scratch.solution.max_residual) < 1e-8
@@ -818,7 +818,7 @@ def test_closing_steps_never_carry_an_object_through_a_beam():
         iterations, unknowns = 1, np.zeros(1)
 
     ts = []
-    stepper = object.__new__(_Stepper)
+    stepper = object.__new__(Stepper)
     stepper.solve = lambda at_t, guess: (ts.append(at_t), (Easy(), True))[1]
-    t, _, ok = _Stepper.follow(stepper, lambda t: t, 0.0, 1000.0, None, 125.0, 0.1, max_step=4.5)
+    t, _, ok = Stepper.follow(stepper, lambda t: t, 0.0, 1000.0, None, 125.0, 0.1, max_step=4.5)
     assert ok and t == 1000.0 and np.max(np.diff([0.0] + ts)) <= 4.5 + 1e-9

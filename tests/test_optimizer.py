@@ -332,15 +332,15 @@ def test_reparameterisation_keeps_every_value_inside_its_bounds():
     lo, hi = np.array([16.5, -0.2]), np.array([31.0, 0.2])
     data = eqx.tree_at(lambda d: (d.lo, d.hi), _dummy_data(), (jnp.asarray(lo), jnp.asarray(hi)))
     for z in ([-40.0, 40.0], [40.0, -40.0], [0.0, 0.0], [3.0, -7.0]):
-        x = np.asarray(O._design_of(data, jnp.asarray(z)))
+        x = np.asarray(OBJ.design_of(data, jnp.asarray(z)))
         assert np.all(x >= lo) and np.all(x <= hi)
     x0 = np.array([20.0, 0.05])
-    z0 = O._z_of(lo, hi, x0)
-    np.testing.assert_allclose(np.asarray(O._design_of(data, jnp.asarray(z0))), x0, rtol=1e-14)
+    z0 = OBJ.z_of(lo, hi, x0)
+    np.testing.assert_allclose(np.asarray(OBJ.design_of(data, jnp.asarray(z0))), x0, rtol=1e-14)
 
 
 def _dummy_data(limits=(0.0,) * 5, scales=(1.0,) * 5):
-    return OBJ._Data(
+    return OBJ.Data(
         bases=None,
         lo=jnp.zeros(1),
         hi=jnp.ones(1),
@@ -354,7 +354,7 @@ def _dummy_data(limits=(0.0,) * 5, scales=(1.0,) * 5):
 
 
 def _static(constraints, aggregate="mean"):
-    return OBJ._Static(
+    return OBJ.Static(
         names=(),
         objective="contact_force",
         aggregate=aggregate,
@@ -620,7 +620,7 @@ min_spacing = {spacing}
 def _fd_check(p, setup, z0, values_at, h=1e-4):
     """Gradient of the objective (object 0) in z by the IFT against central differences
     of the same discrete model at the same warm start and penalty stiffness."""
-    (loss, aux), grad = O._loss_and_grad(z0, setup.static, setup.data, setup.anchors)
+    (loss, aux), grad = OBJ.loss_and_grad(z0, setup.static, setup.data, setup.anchors)
     assert float(aux["penalty"]) == 0.0  # so d loss = -d J / J0 (J0 = 1 here)
     errors = {}
     for j, name in enumerate(p.names):
@@ -634,10 +634,10 @@ def _fd_check(p, setup, z0, values_at, h=1e-4):
 def test_contact_force_gradient_matches_central_differences(tmp_path):
     p = _load(LAYOUT.format(finger=FINGER, objective="contact_force", spacing=1.0), tmp_path)
     setup = O._setup(p)
-    z0 = jnp.asarray(O._z_of(p.lo, p.hi, p.x0), jnp.float64)
+    z0 = jnp.asarray(OBJ.z_of(p.lo, p.hi, p.x0), jnp.float64)
 
     def values_at(z):
-        (_, aux), _ = O._loss_and_grad(z, setup.static, setup.data, setup.anchors)
+        (_, aux), _ = OBJ.loss_and_grad(z, setup.static, setup.data, setup.anchors)
         assert bool(aux["converged"][0])
         return float(aux["values"][0])
 
@@ -662,8 +662,8 @@ def test_reanchoring_keeps_the_initial_discretisation(tmp_path):
     anchors = O._reanchor(p, setup, x, setup.anchors, lambda m: None)
     assert anchors is not None
     assert anchors.unknowns.shape == setup.anchors.unknowns.shape
-    z = jnp.asarray(O._z_of(p.lo, p.hi, x), jnp.float64)
-    _, aux = OBJ._loss_only(z, setup.static, setup.data, anchors)
+    z = jnp.asarray(OBJ.z_of(p.lo, p.hi, x), jnp.float64)
+    _, aux = OBJ.loss_only(z, setup.static, setup.data, anchors)
     assert bool(jnp.all(aux["converged"])) and bool(aux["valid"])
     np.testing.assert_allclose(aux["x"], x, rtol=1e-12)
 
@@ -695,19 +695,19 @@ def test_holding_force_gradient_is_the_envelope_gradient(tmp_path):
     p = _load('objective = "holding_force"\nfriction = 0.5\n' + text, tmp_path)
     setup = O._setup(p)
     assert setup.static.topology.contact.friction  # the grasp's was built without
-    z0 = jnp.asarray(O._z_of(p.lo, p.hi, p.x0), jnp.float64)
+    z0 = jnp.asarray(OBJ.z_of(p.lo, p.hi, p.x0), jnp.float64)
     anchors = O._refine_pull(setup, z0, setup.anchors, p.pull_step)
     # at the refined peak dF/dt vanishes, or the peak is the onset of the pull (t* = 0,
     # F falling): the envelope theorem holds for both (t* fixed at the bound)
-    v, s, _, _ = O._pull_slope(z0, setup.static, setup.data, anchors)
+    v, s, _, _ = OBJ.pull_slope(z0, setup.static, setup.data, anchors)
     interior = abs(float(s[0])) * p.pull_step < 1e-8 * abs(float(v[0]))
     assert interior or (float(anchors.pull[0]) == 0.0 and float(s[0]) < 0)
-    (_, aux), grad = O._loss_and_grad(z0, setup.static, setup.data, anchors)
+    (_, aux), grad = OBJ.loss_and_grad(z0, setup.static, setup.data, anchors)
     assert float(aux["values"][0]) > 0
 
     def peak(z):
         a = O._refine_pull(setup, z, anchors, p.pull_step)
-        return float(O._pull_slope(z, setup.static, setup.data, a)[0][0])
+        return float(OBJ.pull_slope(z, setup.static, setup.data, a)[0][0])
 
     h = 1e-4
     for j, name in enumerate(p.names):

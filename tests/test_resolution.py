@@ -178,7 +178,7 @@ def test_grasp_normal_force_estimate_against_a_fine_solve():
     import dataclasses
 
     from finray_jax import io as fio
-    from finray_jax._grasp import _with_stiffness, contact_result
+    from finray_jax._grasp import contact_result, with_stiffness
     from finray_jax._solve import _direct_core
 
     root = pathlib.Path(__file__).resolve().parents[1]
@@ -188,7 +188,7 @@ def test_grasp_normal_force_estimate_against_a_fine_solve():
     assert check.status == "converged" and check.quantity == "normal_force"
     assert check.order == 2 and check.steps == (16, 32, 64)
     assert check.reliable
-    moved = _with_stiffness(g.finger, g.stiffness)
+    moved = with_stiffness(g.finger, g.stiffness)
     integ = dataclasses.replace(g.integrator, steps=128)
     fine, _, _ = _direct_core(
         g.topology, integ, fr.SolverOptions(), moved, g.solution.unknowns, np.float64(0.0)

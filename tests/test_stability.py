@@ -11,7 +11,7 @@ from scipy import optimize
 import finray_jax as fr
 import finray_jax.io
 from finray_jax import _fold, design
-from finray_jax._grasp import _Stepper, _with_stiffness
+from finray_jax._grasp import Stepper, with_stiffness
 from finray_jax._rod import Integrator, PlanarRod, flow_jacobians
 from finray_jax._solution import RESULTS, status_name
 from finray_jax._solve import SolverOptions, _direct_core
@@ -188,7 +188,7 @@ def test_path_in_clamp_length_goes_on_past_its_fold_on_the_other_stable_branch()
     finger, settings = _modified(2.0)
     g = fr.grasp(finger, settings.closing, direction=settings.direction)
     assert g.converged
-    stepper = _Stepper(g.finger, "planar", g.integrator, SolverOptions(), False, g.topology)
+    stepper = Stepper(g.finger, "planar", g.integrator, SolverOptions(), False, g.topology)
     stepper.direction = np.asarray(g.direction)
 
     def at(u):  # l_c = 2 - u
@@ -204,7 +204,7 @@ def test_path_in_clamp_length_goes_on_past_its_fold_on_the_other_stable_branch()
     assert end.stable
 
     direct = fr.grasp(
-        _with_stiffness(_modified(0.5)[0], float(g.stiffness), float(g.support_stiffness)),
+        with_stiffness(_modified(0.5)[0], float(g.stiffness), float(g.support_stiffness)),
         settings.closing,
         direction=settings.direction,
         stiffen=False,

@@ -175,13 +175,13 @@ def test_the_open_finger_is_clear_of_the_objects_before_the_estimated_contact():
     """_closing_to_contact: a closing that leaves a cylinder 2 mm in front of the straight
     front beam clear of it, short of that 2 mm by at most the samples' spacing."""
     from finray_jax._geometry import main_beam_samples
-    from finray_jax._grasp import _closing_to_contact, _moved
+    from finray_jax._grasp import _closing_to_contact, with_objects_moved
 
     design = studies.with_object(_finger(), 18.0, clearance=2.0)
     gap = _closing_to_contact(design)
     assert 2.0 - 130.0 / 400 <= gap <= 2.0
     for closing in (gap, 2.0 - 1e-9):  # clear up to the first contact, however sampled
-        moved = _moved(design, np.array([closing, 0.0]))
+        moved = with_objects_moved(design, np.array([closing, 0.0]))
         _, p, h = (np.asarray(x) for x in main_beam_samples(moved, 24001))
         assert np.min(np.asarray(moved.objects[0].signed_distance(p)) - h) > 0
 
