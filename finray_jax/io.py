@@ -37,7 +37,7 @@ from . import (
     validate_finger,
 )
 from ._finger import check_mode_carries_loads
-from ._solve import LINEAR_SOLVERS
+from ._options import LINEAR_SOLVERS
 
 __all__ = [
     "FingerFileError",

@@ -248,3 +248,67 @@ def test_spatial_tangent_basis_spans_frame_tangents():
     E, d = model.tangent_basis(y), model.tangent_coords(y, dy)
     assert E.shape == (18, 9) and d.shape == (9,)
     np.testing.assert_allclose(np.asarray(E @ d), np.asarray(dy), atol=1e-14)
+
+
+def test_banded_lu_is_a_lineax_solver():
+    """`BandedLU` through lineax: `lineax.linear_solve` of ref-A's Jacobian (as a Jacobian
+    operator of the residual) solves J x = b and its transpose as a dense solve does
+    (backward error at round-off: the banded LU pivots within the band, a dense LU over
+    whole columns, so the two agree to cond(J) x eps, not digit for digit)."""
+    import lineax as lx
+
+    from finray_jax._linear import BandedLU
+    from finray_jax._newton import natural_residual
+
+    finger = fr.ref_finger_a("L1")
+    topo = fr.topology_of(finger, "planar")
+    problem = _solve._make_problem(topo, fr.Integrator(), finger)
+    rng = np.random.default_rng(1)
+    y = problem.undeformed().reshape(-1)
+    y = y + 1e-2 * jnp.asarray(rng.standard_normal(y.shape))
+    lam = jnp.asarray(0.7)
+    op = lx.JacobianLinearOperator(natural_residual, y, (problem, lam))
+    J = np.asarray(jax.jacfwd(natural_residual)(y, (problem, lam)))
+    b = jnp.asarray(rng.standard_normal(y.shape))
+    solver = BandedLU(topo.band)
+    x = np.asarray(lx.linear_solve(op, b, solver).value)
+    # J^-T b by reverse mode through the solve (lineax transposes it with the solver's
+    # `transpose`: the operator itself must have the plan's pattern, J's, not J^T's).
+    xt = np.asarray(jax.grad(lambda c: jnp.dot(b, lx.linear_solve(op, c, solver).value))(b))
+    scale = np.abs(J).max() * np.abs(x).max()
+    np.testing.assert_allclose(J @ x, b, rtol=0, atol=1e-12 * scale)
+    scale_t = np.abs(J).max() * np.abs(xt).max()
+    np.testing.assert_allclose(J.T @ xt, b, rtol=0, atol=1e-12 * scale_t)
+
+
+def test_optimistix_adjoint_with_banded_lu_gives_the_same_gradient():
+    """The root's tangent from optimistix's implicit JVP with `BandedLU` (what
+    `root_find`'s ImplicitAdjoint computes) equals the project's one-pass rule
+    (finray_jax._implicit) on ref-A L2 planar, for the front beam's thickness: the same
+    theorem solved with the same factors, so to round-off (1e-9 of the tangent, the
+    Newton tolerance's effect on the root at which both are evaluated)."""
+    import optimistix as optx
+
+    from finray_jax._implicit import _root_primal, _root_rewrite, attach_implicit_gradient
+    from finray_jax._linear import BandedLU
+
+    base = fr.ref_finger_a("L2")
+    topo = fr.topology_of(base, "planar")
+    y = fr.solve_finger(base, mode="planar").unknowns.reshape(-1)
+    one = jnp.ones(())
+
+    def root(t, how):
+        finger = eqx.tree_at(lambda f: f.front.thickness, base, t)
+        problem = _solve._make_problem(topo, fr.Integrator(), finger)
+        if how == "project":
+            return attach_implicit_gradient(problem, one, y, "banded")[0]
+        inputs = (problem, one, jax.lax.stop_gradient(y))
+        solver = BandedLU(topo.band)
+        return optx.internal.implicit_jvp(_root_primal, _root_rewrite, inputs, frozenset(), solver)[
+            0
+        ]
+
+    t0 = base.front.thickness
+    ours = jax.jvp(lambda t: root(t, "project"), (t0,), (jnp.ones(()),))[1]
+    theirs = jax.jvp(lambda t: root(t, "optimistix"), (t0,), (jnp.ones(()),))[1]
+    np.testing.assert_allclose(theirs, ours, rtol=0, atol=1e-9 * np.abs(ours).max())

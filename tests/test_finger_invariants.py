@@ -18,7 +18,7 @@ import pytest
 from helpers import beam_at, global_balance, without_jacobian
 
 import finray_jax as fr
-from finray_jax import _banded, _solve
+from finray_jax import _banded, _newton, _solve, _steps
 from finray_jax._rotation import planar_frame
 
 LB = float(np.hypot(40.0, 120.0))  # back-beam length of ref-A
@@ -626,7 +626,7 @@ def test_the_fold_is_found_at_any_load_magnitude():
 )
 def test_bordered_linearisation_gives_the_path_tangent(case, mode):
     """The continuation's corrector and tangent read b = J^-1 dr/dlam from
-    `_linearise_arc`. With point loads only (L2) its dr/dlam is the residual's derivative
+    `linearise_arc`. With point loads only (L2) its dr/dlam is the residual's derivative
     at fixed end states; with a distributed load (L3, where r is nonlinear in lam through
     the flows) it is one plain forward-mode tangent through the integrator. Checked
     against a dense Jacobian and the segment flow's own JVP rule at a deformed state with
@@ -637,9 +637,10 @@ def test_bordered_linearisation_gives_the_path_tangent(case, mode):
     problem = _solve._nograd(_solve._make_problem(topo, fr.Integrator(), finger))
     half = jax.numpy.asarray(0.5)
     y = _solve.undeformed_unknowns(topo, finger)
-    y = _solve._newton_lean(problem, y, half, fr.SolverOptions()).y  # an equilibrium
+    y = _newton.solve_root(problem, y, half, fr.SolverOptions()).y  # an equilibrium
     y = y + 1e-3 * np.cos(np.arange(y.size))  # and a point off it
-    r, factors, sign, b = _solve._linearise_arc(problem, half, y, "banded", True)
+    solver = _newton.linear_solver_of(problem, "banded")
+    r, factors, sign, b = _steps.linearise_arc(problem, half, y, solver, True)
     fn = lambda a, lam: _solve._natural_fn(a, (problem, lam))
     J = jax.jacfwd(fn)(y, half)
     r_lam = jax.jvp(lambda lam: fn(y, lam), (half,), (jax.numpy.ones(()),))[1]
