@@ -12,12 +12,12 @@ from ._cantilever import CantileverSolution as CantileverSolution
 from ._cantilever import solve_cantilever as solve_cantilever
 from ._contact import Contact as Contact
 from ._contact import with_friction as with_friction
+from ._errors import FingerError as FingerError
+from ._errors import FingerWarning as FingerWarning
 from ._finger import Adaptor as Adaptor
 from ._finger import Crossbeams as Crossbeams
 from ._finger import DistributedLoad as DistributedLoad
 from ._finger import Finger as Finger
-from ._finger import FingerError as FingerError
-from ._finger import FingerWarning as FingerWarning
 from ._finger import Material as Material
 from ._finger import PointLoad as PointLoad
 from ._finger import Section as Section
@@ -33,6 +33,7 @@ from ._grasp import contact_result as contact_result
 from ._grasp import grasp as grasp
 from ._grasp import regrasp as regrasp
 from ._grasp import release_force as release_force
+from ._grasp import stability as stability
 from ._objects import AbstractObject as AbstractObject
 from ._objects import Circle as Circle
 from ._objects import Ellipse as Ellipse
@@ -55,7 +56,7 @@ from ._solve import solve_finger as solve_finger
 from ._solve import topology_of as topology_of
 from ._stability import CriticalPoint as CriticalPoint
 from ._stability import Stability as Stability
-from ._stability import stability as stability
+from ._version import __version__ as __version__
 from .batch import BatchResult as BatchResult
 from .batch import solve_batch as solve_batch
 from .design import get_design as get_design
@@ -63,5 +64,3 @@ from .design import set_design as set_design
 from .resolution import ResolutionCheck as ResolutionCheck
 from .resolution import check_grasp_resolution as check_grasp_resolution
 from .resolution import check_resolution as check_resolution
-
-__version__ = "0.1.0"

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._errors import FingerError
 from ._objects import kind_by_key, param_size
 from ._types import as_float
 
@@ -178,8 +179,6 @@ def check_friction(spec: ContactSpec | None, finger):
     """Raise when a topology without friction meets a finger whose friction acts. (Under
     a trace, where the friction is not known, the topology is trusted: a traced finger
     with friction needs `with_friction(topology)` or a topology built with friction.)"""
-    from ._finger import FingerError
-
     if spec is None or spec.friction or not _friction_acts(finger.contact):
         return
     c = finger.contact

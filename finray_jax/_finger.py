@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._contact import Contact
+from ._errors import FingerError, FingerWarning
 from ._geometry import geometry, main_beam_arc, main_beam_samples, xz
 from ._objects import AbstractObject
 from ._types import as_float
@@ -174,14 +175,6 @@ def beam_name(beam: int) -> str:
 # --------------------------------------------------------------------------------------
 # Eager validation: every rule names the field and the value.
 # --------------------------------------------------------------------------------------
-
-
-class FingerError(ValueError):
-    """An invalid finger description."""
-
-
-class FingerWarning(UserWarning):
-    """A valid finger with a likely mistake (a load the adaptor carries, for example)."""
 
 
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
@@ -686,8 +679,6 @@ def _validate_contact(finger: Finger) -> None:
 
 
 def _validate_object(where: str, obj) -> None:
-    from ._objects import AbstractObject
-
     if not isinstance(obj, AbstractObject):
         raise FingerError(f"{where} is not an object (Circle, Ellipse, ...): {obj!r}")
     for name in ("center", "point", "normal"):

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._assembly import build_topology
 from ._contact import (
     check_friction,
     member_penetration_limit,
@@ -31,7 +32,8 @@ from ._contact import (
     support_stiffness,
     with_friction,
 )
-from ._finger import BACK, FRONT, Finger, FingerError
+from ._finger import BACK, FRONT, DistributedLoad, Finger, FingerError, validate_finger
+from ._geometry import geometry, main_beam_samples, thickness_at
 from ._members import group_forces
 from ._objects import HalfPlane, safe_norm
 from ._rod import Integrator
@@ -42,10 +44,11 @@ from ._solve import (
     _make_problem,
     prepare,
     resolve_mode,
+    topology_of,
     undeformed_unknowns,
 )
 from ._stability import CriticalPoint, Stability, stability_of, stable_neighbours
-from ._types import as_float
+from ._types import as_float, check_x64
 
 GRASP_STEPS = 16  # default integration steps per segment for contact problems
 MAX_STIFFENING = 16.0  # the largest factor on a penalty stiffness in one round
@@ -124,8 +127,6 @@ def contact_result(finger: Finger, sol: Solution, direction) -> ContactResult:
     Sampled pressures at the solution points split it between objects and support and
     give the normal force.
     """
-    from ._geometry import geometry, thickness_at
-
     geo = geometry(finger)
     c = finger.contact
     k, delta = stiffness(finger), smoothing(finger)
@@ -238,8 +239,6 @@ def _blocks_integral(x, s_b, steps):
 
 def _distributed(finger: Finger, beam: int, s0, s1):
     """Resultant (x, z) of the distributed loads on each segment [s0, s1] of a beam."""
-    from ._finger import DistributedLoad
-
     total = jnp.zeros((s0.shape[0], 2))
     for ld in finger.loads:
         if isinstance(ld, DistributedLoad) and ld.beam == beam:
@@ -339,6 +338,26 @@ class GraspSolution(eqx.Module):
         return out
 
 
+def stability(result, finger=None, *, integrator=None, topology=None) -> Stability:
+    """The stability of a computed equilibrium (eager; planar fingers).
+
+    result: a `GraspSolution` (its own finger, segment table and integrator), or a
+        `Solution` or `Fold` of `finger` (pass the integrator and topology it was solved
+        with, when not the defaults).
+    """
+    if isinstance(result, GraspSolution):
+        finger, topology, integrator = result.finger, result.topology, result.integrator
+        result = result.solution
+    if finger is None:
+        raise FingerError("stability(solution, finger): pass the finger it was solved for")
+    if topology is None:
+        topology = topology_of(finger, getattr(result, "mode", "planar"))
+    if integrator is None:
+        steps = getattr(result, "steps", 0)
+        integrator = Integrator(steps=steps) if steps else Integrator()
+    return stability_of(topology, integrator, finger, result.unknowns, result.load_factor)
+
+
 def with_objects_moved(finger: Finger, displacement) -> Finger:
     # (dataclasses.replace: half the cost of eqx.tree_at, which a path pays per step)
     objs = tuple(o.moved(displacement) for o in finger.objects)
@@ -388,9 +407,6 @@ class Stepper:
     objects clear of the beams)."""
 
     def __init__(self, finger, mode, integrator, options, validate=True, topology=None):
-        from ._assembly import build_topology
-        from ._types import check_x64
-
         self.finger = finger
         if validate:
             self.topo = prepare(finger, mode)
@@ -577,9 +593,6 @@ def _growth(iterations: int) -> float:
 def check_objects(finger: Finger, w):
     """The finger is valid (this is the grasp's one validation); its objects lie ahead of
     its front side and within its span."""
-    from ._finger import validate_finger
-    from ._geometry import main_beam_samples
-
     if not isinstance(finger, Finger):
         raise TypeError(f"expected a Finger, got {type(finger).__name__}")
     if not finger.objects:
@@ -821,8 +834,6 @@ def _closing_to_contact(finger: Finger, samples: int = 401) -> float:
     spacing (a signed distance changes by at most the distance moved, so the gap between
     samples is no smaller than that). Moving the objects by less than the gap leaves
     them clear of the beams, whatever the direction."""
-    from ._geometry import main_beam_samples
-
     s, p, h = (np.asarray(x) for x in main_beam_samples(finger, samples))
     spacing = float(np.max(s[:, -1])) / (samples - 1)
     gap = min(float(np.min(np.asarray(o.signed_distance(p)) - h)) for o in finger.objects)

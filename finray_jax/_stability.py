@@ -38,7 +38,8 @@ import scipy.linalg
 
 from ._finger import FingerError
 from ._members import energy
-from ._rod import Integrator, flow_jacobians
+from ._rod import flow_jacobians
+from ._solve import _make_problem
 
 KIN = slice(0, 3)  # (x, z, theta) in a planar state
 WRENCH = slice(3, 6)  # (nx, nz, my)
@@ -164,8 +165,6 @@ def _at_equilibrium(topo, integrator, finger, Y, lam):
     """Every segment's flow Jacobian at every step point, (S, steps + 1, n_full, k), with
     the contact law on every segment (exact where none acts); the unknowns' scale, the
     segments' lengths and rigid parts, and the length and force scales."""
-    from ._solve import _make_problem
-
     problem = _make_problem(topo, integrator, finger)
     Y = jnp.reshape(Y, (topo.n_segments, -1))
     starts = problem.start_states(Y)
@@ -307,29 +306,6 @@ def condensed_stability(
         modes=modes,
         perturbations=dY / y_scale,
     )
-
-
-def stability(result, finger=None, *, integrator=None, topology=None) -> Stability:
-    """The stability of a computed equilibrium (eager; planar fingers).
-
-    result: a `GraspSolution` (its own finger, segment table and integrator), or a
-        `Solution` or `Fold` of `finger` (pass the integrator and topology it was solved
-        with, when not the defaults).
-    """
-    from ._grasp import GraspSolution
-    from ._solve import topology_of
-
-    if isinstance(result, GraspSolution):
-        finger, topology, integrator = result.finger, result.topology, result.integrator
-        result = result.solution
-    if finger is None:
-        raise FingerError("stability(solution, finger): pass the finger it was solved for")
-    if topology is None:
-        topology = topology_of(finger, getattr(result, "mode", "planar"))
-    if integrator is None:
-        steps = getattr(result, "steps", 0)
-        integrator = Integrator(steps=steps) if steps else Integrator()
-    return stability_of(topology, integrator, finger, result.unknowns, result.load_factor)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -35,11 +35,14 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from . import _solve
 from ._assembly import build_topology, event_s
 from ._finger import Finger, FingerError, beam_name, validate_finger
+from ._grasp import grasp, release_force
 from ._rod import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import SolverOptions, solve_finger, topology_of
 from .design import (
+    GRASP_OUTPUTS,
     OUTPUTS,
+    RELEASE_OUTPUTS,
     DesignError,
     check_design_names,
     check_output_names,
@@ -525,9 +528,6 @@ def iter_grasps(
     A design that is invalid, leaves the base topology or moves its objects out of reach
     is `invalid`; a grasp that does not converge is `failed` with the solver's result.
     """
-    from ._grasp import grasp, release_force
-    from .design import GRASP_OUTPUTS, RELEASE_OUTPUTS
-
     arrays, size = _check_values(base_finger, values)
     outputs = tuple(outputs)
     for name in outputs:

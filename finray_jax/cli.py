@@ -20,9 +20,14 @@ import numpy as np
 import finray_jax as fr
 
 from . import io as fio
+from . import optimize_file, studies
+from . import optimizer as fopt
+from . import sweep as fsweep
 from ._cache import enable_compilation_cache
 from ._finger import loads_are_zero
+from ._grasp import check_objects, unit_direction
 from .design import DesignError
+from .plot import clamp_study_figure, grasp_figure, save_figure, save_solution_figure
 from .studies import StudyRecordError
 
 EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
@@ -566,8 +571,6 @@ def _cmd_solve(args) -> int:
         fio.write_json(args.out, out)
         print(f"wrote {args.out}")
     if args.plot:
-        from .plot import save_solution_figure
-
         save_solution_figure(sol, finger, args.plot, title=settings.name or args.finger)
         print(f"wrote {args.plot}")
     return STATUS_EXIT[sol.status]
@@ -640,8 +643,6 @@ def _cmd_limit(args) -> int:
         fio.write_json(args.out, fio.limit_to_dict(lim, finger, settings=settings))
         print(f"wrote {args.out}")
     if args.plot:
-        from .plot import save_solution_figure
-
         save_solution_figure(
             sol,
             finger.scale_loads(factor),
@@ -659,8 +660,6 @@ def _check_grasp_objects(path, finger, settings) -> str | None:
     Returns what was checked, for a summary line (None: no [grasp], nothing to check:
     objects in a file without one are obstacles of a loaded solve, where any side of the
     finger is fine)."""
-    from ._grasp import check_objects, unit_direction
-
     gs = settings.grasp
     if gs is None:
         return None
@@ -703,16 +702,12 @@ def _shown_path(path) -> str:
 def _validate_study(path, kind) -> str:
     """Read a sweep or optimisation file (its base finger too) and say what it holds."""
     if kind == "sweep":
-        from . import sweep as fsweep
-
         sw = fsweep.load_sweep(path)
         what = (
             f"sweep of {_count(sw.size, 'design')} ({sw.sampling}) over {', '.join(sw.names)}; "
             f"{_count(len(sw.outputs), 'output')}, mode {sw.mode}"
         )
         return f"{path}: OK: {what}; base finger {_shown_path(sw.finger_path)}"
-    from . import optimize_file
-
     pb = optimize_file.load_optimize(path)
     names = ", ".join(d.name for d in pb.design)
     what = (
@@ -750,19 +745,14 @@ def _cmd_demo(args) -> int:
     out = args.out
     png, js = os.path.join(out, "demo.png"), os.path.join(out, "demo.json")
     fio.write_json(js, fio.solution_to_dict(sol, finger, settings=settings))
-    from .plot import save_solution_figure
-
     save_solution_figure(sol, finger, png, title="Finger-1, 4 N over l5..l7")
     print(f"wrote {png}\nwrote {js}")
-
-    from .plot import grasp_figure, save_figure
-    from .studies import compare_adaptors
 
     print(
         "\nGrasping an 18 mm cylinder: original vs modified adaptor (front base pinned, "
         "back beam clamped over 20 mm, rigid support to 60 mm), same closing of 6 mm"
     )
-    cmp = compare_adaptors(finger, closing=6.0, release_diameters=(), progress=_progress)
+    cmp = studies.compare_adaptors(finger, closing=6.0, release_diameters=(), progress=_progress)
     print("\n".join(_comparison_lines(cmp)))
     grasp_png = os.path.join(out, "demo_grasp.png")
     save_figure(grasp_figure([cmp.original, cmp.modified], ["original", "modified"]), grasp_png)
@@ -772,8 +762,6 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from . import sweep as fsweep
-
     if args.max_chunks is not None and args.max_chunks < 1:
         raise UserError(f"--max-chunks must be a positive integer, got {args.max_chunks}")
     sw = fsweep.load_sweep(args.sweep)
@@ -801,8 +789,6 @@ def _cmd_sweep(args) -> int:
 def _no_design_converged(run) -> str:
     """The stderr line of a finished sweep in which no design converged: the counts and
     the most frequent reason (the CSV's reason column)."""
-    from . import sweep as fsweep
-
     counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))
     text = (
         f"no design of the sweep converged ({counts or 'no rows'}); see the reason column "
@@ -816,8 +802,6 @@ def _no_design_converged(run) -> str:
 
 
 def _cmd_optimize(args) -> int:
-    from . import optimizer as fopt
-
     if args.max_iterations is not None and args.max_iterations < 1:
         raise UserError(f"--max-iterations must be a positive integer, got {args.max_iterations}")
     pr = fopt.load_optimize(args.optimize)
@@ -1043,8 +1027,6 @@ def _cmd_grasp(args) -> int:
         fio.write_json(args.out, out)
         print(f"wrote {args.out}")
     if args.plot:
-        from .plot import grasp_figure, save_figure
-
         save_figure(grasp_figure([g], [settings.name or "grasp"]), args.plot)
         print(f"wrote {args.plot}")
     return EXIT_OK if g.converged else EXIT_FAILED
@@ -1076,10 +1058,8 @@ def _placed_rows(cmp, paper_gain) -> list[list[str]]:
 def _placed_note(cmp) -> list[str]:
     if cmp.placed is None:
         return []
-    from .studies import ABOVE_SUPPORT
-
     return [
-        f"  The paper's gain is what this model gives with the object {ABOVE_SUPPORT:g} mm "
+        f"  The paper's gain is what this model gives with the object {studies.ABOVE_SUPPORT:g} mm "
         "above the end of the",
         f"  support (here at {cmp.placed[0]:g} mm). At 60 mm the object presses on crossbeams "
         "the support backs.",
@@ -1087,8 +1067,6 @@ def _placed_note(cmp) -> list[str]:
 
 
 def _comparison_lines(cmp) -> list[str]:
-    from .studies import PAPER_CONTACT_FORCE_GAIN, PAPER_RELEASE_RANGE
-
     o, m = cmp.original.contact, cmp.modified.contact
     rows = [
         [
@@ -1096,14 +1074,14 @@ def _comparison_lines(cmp) -> list[str]:
             _f(o.normal_force),
             _f(m.normal_force),
             _percent(cmp.contact_force_gain),
-            f"+{PAPER_CONTACT_FORCE_GAIN:.0f} % (simulated)",
+            f"+{studies.PAPER_CONTACT_FORCE_GAIN:.0f} % (simulated)",
         ],
-        *_placed_rows(cmp, PAPER_CONTACT_FORCE_GAIN),
+        *_placed_rows(cmp, studies.PAPER_CONTACT_FORCE_GAIN),
         ["contact length (mm)", _f(o.contact_length), _f(m.contact_length), "", ""],
         ["crossbeam force x (N)", _f(o.crossbeam_force[0]), _f(m.crossbeam_force[0]), "", ""],
         ["crossbeam force z (N)", _f(o.crossbeam_force[2]), _f(m.crossbeam_force[2]), "", ""],
     ]
-    lo, hi = PAPER_RELEASE_RANGE
+    lo, hi = studies.PAPER_RELEASE_RANGE
     for d, (a, b) in cmp.release.items():
         rows.append(
             [
@@ -1125,14 +1103,11 @@ def _comparison_lines(cmp) -> list[str]:
 
 
 def _cmd_compare(args) -> int:
-    from .plot import grasp_figure, save_figure
-    from .studies import compare_adaptors
-
     finger = _study_finger(args.finger)
     t0 = time.perf_counter()
     kept = os.path.join(args.out, "compare_record.json")
     try:
-        cmp = compare_adaptors(
+        cmp = studies.compare_adaptors(
             finger, closing=args.closing, friction=args.friction, progress=_progress, record=kept
         )
     except KeyboardInterrupt:
@@ -1182,9 +1157,6 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_clamp_study(args) -> int:
-    from .plot import clamp_study_figure, save_figure
-    from .studies import clamp_study
-
     if args.friction and not args.holding:
         raise UserError("--friction applies to the release traces: add --holding")
     if args.actuator_force is not None and args.closing != STUDY_CLOSING:
@@ -1195,7 +1167,7 @@ def _cmd_clamp_study(args) -> int:
     finger = _study_finger(args.finger)
     js = os.path.join(args.out, "clamp_study.json")
     try:
-        st = clamp_study(
+        st = studies.clamp_study(
             finger,
             closing=args.closing,
             actuator_force=args.actuator_force,

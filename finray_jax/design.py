@@ -71,6 +71,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._assembly import segment_table  # (the solver's own segment lengths)
 from ._finger import BACK, CENTRELINE_SAMPLES, FRONT, Finger
 from ._geometry import arc_point, geometry, thickness_at, xz
 from ._types import as_float
@@ -305,8 +306,6 @@ def design_valid(finger: Finger, topology) -> jax.Array:
     geometry rules (`geometry_valid`: main beams apart except at their tip, never crossing;
     crossbeams long enough).
     """
-    from ._assembly import segment_table  # the solver's own segment lengths
-
     leaves = [x for x in jax.tree_util.tree_leaves(finger) if eqx.is_array(x)]
     ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
     m, cb = finger.material, finger.crossbeams

@@ -22,22 +22,23 @@ from typing import Any
 import diffrax as dfx
 import numpy as np
 
-from . import (
+from ._contact import Contact
+from ._errors import FingerError
+from ._finger import (
     Adaptor,
-    Contact,
     Crossbeams,
     DistributedLoad,
     Finger,
-    FingerError,
-    Integrator,
     Material,
     PointLoad,
     Section,
-    SolverOptions,
+    check_mode_carries_loads,
     validate_finger,
 )
-from ._finger import check_mode_carries_loads
-from ._options import LINEAR_SOLVERS
+from ._objects import OBJECT_KINDS
+from ._options import LINEAR_SOLVERS, SolverOptions
+from ._rod import Integrator
+from ._version import __version__
 
 __all__ = [
     "FingerFileError",
@@ -690,8 +691,6 @@ _OBJECT_KEYS = {
 def _object(value, p: str, r: _Reader):
     """One [[objects]] table: kind, then the kind's keys (points (x, z) in mm, angles in
     degrees)."""
-    from ._objects import OBJECT_KINDS
-
     if not isinstance(value, dict):
         raise r.error(p, f"expected a table [[objects]], got {_type_name(value)}", value)
     if "kind" not in value:
@@ -1166,8 +1165,6 @@ def solution_to_dict(sol, finger: Finger, *, settings: SolveSettings | None = No
     internal wrench (material at s+ on s-, world frame); reactions are what the adaptor
     applies to each beam at its base (moment about the base point).
     """
-    from . import __version__
-
     wr = sol.crossbeam_wrenches
     rot = np.asarray(sol.tip.rotation, dtype=np.float64)
     d = {
@@ -1209,8 +1206,6 @@ def solution_to_dict(sol, finger: Finger, *, settings: SolveSettings | None = No
 
 def limit_to_dict(lim, finger: Finger, *, settings: SolveSettings | None = None) -> dict:
     """A LimitLoad as JSON-able data: the factor, the loads at the limit, the equilibrium."""
-    from . import __version__
-
     factor = float(lim.load_factor)
     sol = solution_to_dict(lim.solution, finger, settings=settings)
     summary = {k: sol[k] for k in ("tip", "reactions", "max_residual", "iterations")}

@@ -12,9 +12,12 @@ import equinox as eqx
 import numpy as np
 
 from . import io as fio
-from ._finger import Finger
+from ._finger import Finger, FingerError, beam_lengths, validate_finger
+from ._geometry import main_beam_samples
+from ._grasp import check_objects, unit_direction
 from .design import DesignError, check_design_names, get_design
 from .design import set_design as _set_design
+from .studies import with_object
 
 __all__ = ["DesignVar", "OptimizeError", "OptimizeProblem", "load_optimize", "loads_optimize"]
 
@@ -92,8 +95,6 @@ class OptimizeProblem:
 
     def object_fingers(self) -> list[Finger]:
         """The base finger of every object (its design values at the initial design)."""
-        from .studies import with_object
-
         base = _set_design(self.finger, dict(zip(self.names, self.x0.tolist())))
         if self.diameters is None:
             return [base]
@@ -287,8 +288,6 @@ def _parse(doc, r, source, base_dir) -> OptimizeProblem:
 
     problem = OptimizeProblem(source, finger_path, finger, settings, **kw)
     x0f = problem.designed(problem.x0)
-    from ._finger import validate_finger
-
     try:
         validate_finger(x0f)
     except Exception as e:  # noqa: BLE001 - reported with the file's name
@@ -329,8 +328,6 @@ def _check_bounds(finger: Finger, name, lo, hi, optimised, error, path, value) -
     beam is optimised too (`optimised`: the names in the file); past a neighbour that
     stays put, they are refused. Likewise the clamp against the support's end when both
     are optimised."""
-    from ._finger import FingerError, validate_finger
-
     # (the clamp against the support's end, when both move, is checked on their bounds
     # together after every [[design]] table is read: here the other one stands aside)
     if name == "adaptor.back_clamp_length" and "adaptor.support_length" in optimised:
@@ -359,8 +356,6 @@ def _crossing_left_to_the_constraint(finger: Finger, name: str, names) -> bool:
     """True when the only fault of `finger` (made by moving crossbeam value `name`) is
     crossbeams out of order on a beam where the other crossbeam's attachment is
     optimised too: the `crossing` constraint keeps the two apart, the bounds need not."""
-    from ._finger import beam_lengths
-
     m = _POSITION.fullmatch(name)
     if m is None:
         return False
@@ -391,10 +386,6 @@ def _check_objects_ahead(problem: OptimizeProblem, r, doc, obj: dict) -> None:
     """The grasp's checks of its objects at the initial design (in reach of the finger,
     ahead of it along the closing direction, clear of the beams), before any solve:
     otherwise the first grasp fails on them, naming a generated objects[0]."""
-    from ._finger import FingerError
-    from ._geometry import main_beam_samples
-    from ._grasp import check_objects, unit_direction
-
     try:
         w = unit_direction(problem.direction, "direction")
     except FingerError as e:

@@ -60,8 +60,10 @@ from ._grasp import (
 )
 from ._solution import RESULTS
 from ._solve import SolverOptions
+from ._version import __version__
 from .design import design_valid_jit
 from .design import set_design as _set_design
+from .plot import plot_grasp, save_figure
 
 __all__ = [
     "CONSTRAINTS",
@@ -736,8 +738,6 @@ def _best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, a
 
 
 def _write_result(problem: OptimizeProblem, run: OptimizeRun, out_dir: str, wall: float):
-    from . import __version__
-
     payload = {
         "source": os.path.abspath(problem.source),
         "objective": problem.objective,
@@ -775,8 +775,6 @@ def _final_grasps(problem: OptimizeProblem, setup: _Setup, x):
 
 def _plots(problem: OptimizeProblem, setup: _Setup, state: dict, out_dir: str, say) -> tuple:
     from matplotlib.figure import Figure
-
-    from .plot import plot_grasp, save_figure
 
     data = read_progress(os.path.join(out_dir, PROGRESS_CSV))
     fig = Figure(figsize=(6.4, 4.0), layout="constrained")

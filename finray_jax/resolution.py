@@ -30,6 +30,7 @@ from ._grasp import GraspSolution, resolve_near
 from ._rod import Integrator
 from ._solution import Solution
 from ._solve import SolverOptions, prepare, solve_finger
+from .io import to_plain  # (NaN -> None, tuples -> lists)
 
 __all__ = ["ResolutionCheck", "check_grasp_resolution", "check_resolution"]
 
@@ -152,8 +153,6 @@ class ResolutionCheck:
 
     def to_dict(self) -> dict:
         """Plain values (JSON-ready), the solutions left out."""
-        from .io import to_plain  # (NaN -> None, tuples -> lists)
-
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         del out["solutions"]
         out["asymptotic"] = self.asymptotic

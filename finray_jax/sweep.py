@@ -28,6 +28,7 @@ from ._finger import Finger, FingerError
 from ._grasp import check_objects, unit_direction
 from ._solution import RESULTS
 from ._solve import resolve_mode
+from ._version import __version__
 from .batch import INVALID, Diagnosis, iter_batch, iter_grasps, one_line
 from .design import (
     GRASP_OUTPUTS,
@@ -255,8 +256,6 @@ def _parse(doc, r, source, base_dir) -> Sweep:
 
 
 def _manifest(sweep: Sweep, finished: bool, source: str) -> dict:
-    from . import __version__
-
     return {
         "sweep_hash": sweep.digest,
         "sweep_file": source,
