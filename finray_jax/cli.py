@@ -39,56 +39,9 @@ STATUS_EXIT = {
     "failed": EXIT_FAILED,
 }
 
-# The default finger of `finray demo`: identical to examples/finger1.toml (a test checks).
-DEMO_FINGER_TOML = """\
-# Finger-1: a 120 mm fin-ray finger approximating "Finger-1" of Sheikh Sofla et al. (2025),
-# under the load of the paper's Fig. 3: 4 N in +x spread uniformly over the front beam
-# between crossbeams 5 and 7 (arc lengths l5 = 75 mm to l7 = 105 mm).
-#
-# ASSUMED DIMENSIONS: the paper's exact dimensions are not available to us. This is
-# ref-A's outline (120 mm front beam, 40 mm base width, 7 horizontal crossbeams every
-# 15 mm) with thicker bands, printed in a NinjaFlex-like TPU (E = 12 MPa, nu = 0.45):
-# front and back beams 3.0 mm, crossbeams 2.0 mm, depth 20 mm. Its limit (fold) load
-# factor under this load is about 2.25 (about 9 N), so 4 N is well inside.
-# Units: mm, N, MPa. Points are (x, z); y is the depth direction.
-
-[meta]
-name = "Finger-1"
-description = "120 mm finger (assumed dimensions), 4 N over l5..l7 as in the paper's Fig. 3."
-
-[material]
-E = 12.0                  # MPa, NinjaFlex-like TPU
-nu = 0.45
-
-[front]
-base = [0.0, 0.0]         # mm
-tip = [0.0, 120.0]        # mm
-thickness = 3.0           # mm
-depth = 20.0              # mm
-
-[back]
-base = [40.0, 0.0]        # mm
-thickness = 3.0
-depth = 20.0
-
-[adaptor]
-front_base = "clamped"
-back_base = "clamped"
-
-[crossbeam_pattern]       # 7 horizontal crossbeams at front-beam arc lengths 15, 30, ..., 105
-count = 7
-front_s = [15.0, 105.0]   # mm, first and last
-horizontal = true
-thickness = 2.0           # mm
-depth = 20.0              # mm
-
-[[loads]]                 # Fig. 3: 4 N horizontal over l5..l7
-kind = "distributed"
-beam = "front"
-s_range = [75.0, 105.0]   # mm
-total_force = [4.0, 0.0, 0.0]   # N, resultant
-"""
-DEMO_SOURCE = "<finray demo: examples/finger1.toml>"
+# The default finger of `finray demo`, `compare` and `clamp-study`: Finger-1, shipped as
+# package data (finray_jax/data/finger1.toml, the same file as examples/finger1.toml).
+DEMO_FINGER = "finger1.toml"
 
 
 class UserError(Exception):
@@ -734,7 +687,7 @@ def _cmd_validate(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    finger, settings = fio.loads_finger(DEMO_FINGER_TOML, source=DEMO_SOURCE)
+    finger, settings = fio.load_packaged_finger(DEMO_FINGER)
     print(
         "finray demo: Finger-1 under the paper's Fig. 3 load, 4 N in +x spread over the "
         "front beam from l5 = 75 mm to l7 = 105 mm"
@@ -1034,7 +987,7 @@ def _cmd_grasp(args) -> int:
 
 def _study_finger(path):
     if path is None:
-        finger, _ = fio.loads_finger(DEMO_FINGER_TOML, source=DEMO_SOURCE)
+        finger, _ = fio.load_packaged_finger(DEMO_FINGER)
     else:
         finger, _ = fio.load_finger(path)
     return finger

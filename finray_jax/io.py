@@ -17,6 +17,7 @@ import math
 import os
 import re
 import tomllib
+from importlib import resources
 from typing import Any
 
 import diffrax as dfx
@@ -807,6 +808,33 @@ def load_finger(path) -> tuple[Finger, SolveSettings]:
     path = os.fspath(path)
     text = _read_text(path, "finger", FingerFileError)
     return loads_finger(text, source=path)
+
+
+# --------------------------------------------------------------------------------------
+# Finger files shipped with the package (finray_jax/data/)
+# --------------------------------------------------------------------------------------
+
+# Finger-1 (assumed dimensions; the default finger of `finray demo`, `compare` and
+# `clamp-study`) and its grasps of a cylinder. examples/ holds the same files for users to
+# copy and edit (a test keeps them identical).
+PACKAGED_FINGERS = (
+    "finger1.toml",
+    "grasp_finger1.toml",
+    "grasp_finger1_modified.toml",
+    "grasp_finger1_modified_50mm.toml",
+)
+
+
+def packaged_finger_text(name: str = "finger1.toml") -> str:
+    """The text of a finger file shipped with finray_jax (one of PACKAGED_FINGERS)."""
+    if name not in PACKAGED_FINGERS:
+        raise ValueError(f"no packaged finger file {name!r}: one of {PACKAGED_FINGERS}")
+    return (resources.files("finray_jax") / "data" / name).read_text(encoding="utf-8")
+
+
+def load_packaged_finger(name: str = "finger1.toml") -> tuple[Finger, SolveSettings]:
+    """Read a finger file shipped with finray_jax (default: Finger-1, finger1.toml)."""
+    return loads_finger(packaged_finger_text(name), source=f"<finray_jax data: {name}>")
 
 
 # --------------------------------------------------------------------------------------

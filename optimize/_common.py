@@ -16,14 +16,13 @@ import jax.numpy as jnp
 import finray_jax as fr
 from finray_jax import io as fio
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-EXAMPLES = ROOT / "examples"
 CLOSING = 6.0  # mm
 
 
 def finger_text() -> str:
-    """examples/finger1.toml (Finger-1, assumed dimensions) as text."""
-    return (EXAMPLES / "finger1.toml").read_text()
+    """Finger-1 (assumed dimensions; finray_jax's packaged finger1.toml, the same file as
+    examples/finger1.toml) as text."""
+    return fio.packaged_finger_text("finger1.toml")
 
 
 def load_finger1(count: int | None = None) -> fr.Finger:
@@ -32,9 +31,9 @@ def load_finger1(count: int | None = None) -> fr.Finger:
     text = finger_text()
     if count is not None:
         if "count = 7" not in text:
-            raise RuntimeError("examples/finger1.toml no longer has 'count = 7'")
+            raise RuntimeError("finger1.toml no longer has 'count = 7'")
         text = text.replace("count = 7", f"count = {int(count)}")
-    finger, _ = fio.loads_finger(text, source="examples/finger1.toml")
+    finger, _ = fio.loads_finger(text, source="finger1.toml (finray_jax data)")
     return finger
 
 

@@ -19,7 +19,7 @@ class _Stop(Exception):
 
 
 def _finger():
-    finger, _ = fio.loads_finger(cli.DEMO_FINGER_TOML, source=cli.DEMO_SOURCE)
+    finger, _ = fio.load_packaged_finger(cli.DEMO_FINGER)
     return finger
 
 

@@ -714,10 +714,24 @@ def test_ref_a_file_equals_ref_finger_a():
     assert settings.mode == "auto" and settings.name
 
 
-def test_demo_finger_is_finger1():
+def test_packaged_fingers_are_the_examples():
+    """Finger-1 and its grasps ship as package data (the CLI's default finger); examples/
+    holds the same files for users to copy: they may not drift apart."""
+    from importlib import resources
+
     from finray_jax import cli
 
-    assert cli.DEMO_FINGER_TOML == (EXAMPLES / "finger1.toml").read_text(encoding="utf-8")
+    data = resources.files("finray_jax") / "data"
+    shipped = sorted(p.name for p in data.iterdir() if p.name.endswith(".toml"))
+    assert shipped == sorted(fio.PACKAGED_FINGERS)
+    assert cli.DEMO_FINGER in fio.PACKAGED_FINGERS
+    for name in fio.PACKAGED_FINGERS:
+        example = (EXAMPLES / name).read_text(encoding="utf-8")
+        assert fio.packaged_finger_text(name) == example, name
+        finger, _ = fio.load_packaged_finger(name)
+        assert_same_finger(finger, fio.load_finger(EXAMPLES / name)[0])
+    with pytest.raises(ValueError, match="no packaged finger file"):
+        fio.packaged_finger_text("ref_a.toml")
 
 
 @pytest.mark.parametrize("name", ["finger1", "finger2"])
