@@ -95,7 +95,7 @@ def bench_batch(n, vectorize, repeats, warm=False):
 
 @eqx.filter_jit
 def _direct_tip(finger):
-    sol, _, _ = _solve._direct_core(TOPO, fr.Integrator(), fr.SolverOptions(), finger, None)
+    sol, _, _ = _solve.direct_core(TOPO, fr.Integrator(), fr.SolverOptions(), finger, None)
     return sol.tip.displacement[0]
 
 

@@ -8,7 +8,7 @@
    each jitted alone: one RK step of the planar rhs, the segment flow of all segments, the
    residual, the residual with its Jacobian, and the dense LU solve.
 
-Timed path: `_direct_core`, the jitted direct Newton solve that `solve_finger` runs for
+Timed path: `direct_core`, the jitted direct Newton solve that `solve_finger` runs for
 these loads (it compiles and runs the continuation only when the direct solve fails).
 Compile time = first call - one steady-state call. Planar mode (3-D with --spatial).
 
@@ -49,7 +49,7 @@ def finger_with_crossbeams(n):
 def time_solve(finger, mode, integrator, repeats):
     topo = fr.topology_of(finger, mode)
     opts = fr.SolverOptions()
-    run = lambda: jax.block_until_ready(_solve._direct_core(topo, integrator, opts, finger, None))
+    run = lambda: jax.block_until_ready(_solve.direct_core(topo, integrator, opts, finger, None))
     t0 = time.perf_counter()
     sol, ok = run()
     first = time.perf_counter() - t0
@@ -73,7 +73,7 @@ def floor(repeats):
     finger = fr.ref_finger_a("L1")
     topo = fr.topology_of(finger, "planar")
     integ = fr.Integrator()
-    problem = _solve._make_problem(topo, integ, finger)
+    problem = _solve.make_problem(topo, integ, finger)
     y = problem.undeformed().reshape(-1)
     lam = jnp.ones(())
     S = topo.n_segments
@@ -103,10 +103,10 @@ def floor(repeats):
     starts = problem.start_states(y.reshape(S, -1))
     Q = problem.params(lam)
     flow = jax.jit(lambda Y0, Q: segment_flow(md, integ, Y0, Q))
-    resid = jax.jit(lambda y: _solve._natural_fn(y, (problem, lam)))
+    resid = jax.jit(lambda y: _solve.natural_residual(y, (problem, lam)))
     jacres = jax.jit(
         lambda y: jax.jacfwd(
-            lambda v: (lambda o: (o, o))(_solve._natural_fn(v, (problem, lam))), has_aux=True
+            lambda v: (lambda o: (o, o))(_solve.natural_residual(v, (problem, lam))), has_aux=True
         )(y)
     )
     J, _ = jacres(y)
@@ -119,7 +119,7 @@ def floor(repeats):
     @jax.jit
     def iteration(y):  # what one Newton iteration of _newton_lean does, less the bookkeeping
         J, r = jax.jacfwd(
-            lambda v: (lambda o: (o, o))(_solve._natural_fn(v, (problem, lam))), has_aux=True
+            lambda v: (lambda o: (o, o))(_solve.natural_residual(v, (problem, lam))), has_aux=True
         )(y)
         return y - lu_solve(J, r)
 

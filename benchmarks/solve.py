@@ -42,34 +42,32 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
     finger = fr.ref_finger_a(case)
     topo = fr.topology_of(finger, mode)
     t0 = time.perf_counter()
-    sol = jax.block_until_ready(_solve._solve_core(topo, integrator, opts, finger, None))
+    sol = jax.block_until_ready(_solve.solve_core(topo, integrator, opts, finger, None))
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    _solve._direct_core.lower(topo, integrator, opts, finger, None).compile()
+    _solve.direct_core.lower(topo, integrator, opts, finger, None).compile()
     direct_compile_s = time.perf_counter() - t0
     cold, n_cold = median_time(
-        lambda: jax.block_until_ready(_solve._solve_core(topo, integrator, opts, finger, None)),
+        lambda: jax.block_until_ready(_solve.solve_core(topo, integrator, opts, finger, None)),
         repeats,
     )
     thicker = eqx.tree_at(lambda f: f.back.thickness, finger, finger.back.thickness * 1.01)
     # The warm start as `solve_finger(init=sol)` makes it: the unknowns and the factors
     # of Newton's last linearisation, which an eager solve keeps (Solution.jacobian).
-    eager = _solve._direct_core(topo, integrator, opts, finger, None, keep_jacobian=True)[0]
-    warm_start = _solve._warm_start(topo, opts, sol.unknowns, eager, True)
-    warm_sol = jax.block_until_ready(
-        _solve._solve_core(topo, integrator, opts, thicker, warm_start)
-    )
+    eager = _solve.direct_core(topo, integrator, opts, finger, None, keep_jacobian=True)[0]
+    warm_start = _solve.warm_start(topo, opts, sol.unknowns, eager, True)
+    warm_sol = jax.block_until_ready(_solve.solve_core(topo, integrator, opts, thicker, warm_start))
     warm, n_warm = median_time(
         lambda: jax.block_until_ready(
-            _solve._solve_core(topo, integrator, opts, thicker, warm_start)
+            _solve.solve_core(topo, integrator, opts, thicker, warm_start)
         ),
         repeats,
     )
     # Baseline in the same run: the start from the unknowns alone (before session 25).
-    plain_sol = _solve._solve_core(topo, integrator, opts, thicker, sol.unknowns)
+    plain_sol = _solve.solve_core(topo, integrator, opts, thicker, sol.unknowns)
     plain, _ = median_time(
         lambda: jax.block_until_ready(
-            _solve._solve_core(topo, integrator, opts, thicker, sol.unknowns)
+            _solve.solve_core(topo, integrator, opts, thicker, sol.unknowns)
         ),
         repeats,
     )
@@ -78,13 +76,13 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
     # beside it.
     front = eqx.tree_at(lambda f: f.front.thickness, finger, finger.front.thickness * 1.01)
     start = _solve.start_from_deformation(topo, front, sol.deformation)
-    start = _solve._warm_start(topo, opts, start, eager, True)
-    front_sol = _solve._solve_core(topo, integrator, opts, front, start)
+    start = _solve.warm_start(topo, opts, start, eager, True)
+    front_sol = _solve.solve_core(topo, integrator, opts, front, start)
     warm_front, _ = median_time(
-        lambda: jax.block_until_ready(_solve._solve_core(topo, integrator, opts, front, start)),
+        lambda: jax.block_until_ready(_solve.solve_core(topo, integrator, opts, front, start)),
         repeats,
     )
-    scaled = _solve._solve_core(topo, integrator, opts, front, sol.unknowns)
+    scaled = _solve.solve_core(topo, integrator, opts, front, sol.unknowns)
     return {
         "case": case,
         "mode": mode,

@@ -106,7 +106,7 @@ def _jacobians(problem, y, lam):
     """J = dR/dy, R_lam = dR/dlam and R at (y, lam)."""
 
     def fn(a, b):
-        r = _solve._natural_fn(a, (problem, b))
+        r = _solve.natural_residual(a, (problem, b))
         return r, r
 
     (J, Jl), r = jax.jacfwd(fn, argnums=(0, 1), has_aux=True)(y, lam)
@@ -210,7 +210,7 @@ def _refine(problem, y0, lam0, opts: FoldOptions):
         jnp.asarray(jnp.inf),
     )  # fmt: skip
     s = lax.while_loop(cond, body, init)
-    r = _solve._natural_fn(s.c.y, (problem, s.c.lam))
+    r = _solve.natural_residual(s.c.y, (problem, s.c.lam))
     U, sv, Vh = jnp.linalg.svd(s.c.J)
     max_res = jnp.max(jnp.abs(r))
     converged = s.ok & settled(s) & (max_res < opts.residual_tol)
@@ -234,7 +234,7 @@ def _refine(problem, y0, lam0, opts: FoldOptions):
 
 
 def _residual_of(topo, integrator, finger, y, lam):
-    return _solve._natural_fn(y, (_solve._make_problem(topo, integrator, finger), lam))
+    return _solve.natural_residual(y, (_solve.make_problem(topo, integrator, finger), lam))
 
 
 @eqx.filter_custom_jvp
@@ -265,10 +265,10 @@ def _attach_jvp(primals, tangents, *, topo, integrator):
 
 @eqx.filter_jit
 def _fold_core(topo, integrator, options, fold_options, finger: Finger, y0, lam0):
-    problem = _solve._nograd(_solve._make_problem(topo, integrator, finger))
+    problem = _solve.nograd(_solve.make_problem(topo, integrator, finger))
     found = jnp.asarray(True)
     if y0 is None:
-        lam0, sol = _solve._limit_core(topo, integrator, options, finger)
+        lam0, sol = _solve.limit_core(topo, integrator, options, finger)
         y0, found = sol.unknowns, sol.result == RESULTS.successful
         lam0, y0 = lax.stop_gradient(lam0), lax.stop_gradient(y0)
     fold, rlam = _refine(problem, y0, lam0, fold_options)

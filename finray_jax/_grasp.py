@@ -40,8 +40,8 @@ from ._rod import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import (
     SolverOptions,
-    _direct_core,
-    _make_problem,
+    direct_core,
+    make_problem,
     prepare,
     resolve_mode,
     topology_of,
@@ -94,7 +94,7 @@ class ContactResult(eqx.Module):
 @functools.partial(jax.jit, static_argnums=(0, 1))
 def _member_outputs(topo, integrator, finger, Y, lam):
     """(largest penetration, (B, B) contact forces) between the finger's members."""
-    problem = _make_problem(topo, integrator, finger)
+    problem = make_problem(topo, integrator, finger)
     starts, ends = problem.ends(jnp.reshape(Y, (topo.n_segments, -1)), lam)
     plan = topo.members
     size, gap = group_forces(plan, *problem.member_args(starts, ends))
@@ -441,7 +441,7 @@ class Stepper:
         ref = np.float64(self.sign if warm else 0.0)
         if not warm:  # (an array either way: one compiled program for both)
             init = undeformed_unknowns(self.topo, finger)
-        solve = lambda: _direct_core(self.topo, self.integrator, self.options, finger, init, ref)
+        solve = lambda: direct_core(self.topo, self.integrator, self.options, finger, init, ref)
         sol, ok, sign = solve()
         ok = bool(ok)
         if not ok and bool(sol.result == RESULTS.contact_outside_near_segments):
@@ -524,7 +524,7 @@ class Stepper:
         for k_rung in [*(k * 4.0 ** np.arange(rungs)), k_s]:
             self.calls += 1
             soft = with_stiffness(finger, k, float(k_rung))
-            sol, ok, sign = _direct_core(self.topo, self.integrator, self.options, soft, guess, ref)
+            sol, ok, sign = direct_core(self.topo, self.integrator, self.options, soft, guess, ref)
             if not bool(ok):
                 return failed
             guess = sol.unknowns
@@ -805,7 +805,7 @@ def resolve_near(g: GraspSolution, moved: Finger, integrator, options):
     check_friction(g.topology.contact, moved)
     # ref_sign 0 (the sign at g's equilibrium), passed as the stepper passes it: an f64
     # array, so this call reuses the grasp's compiled program
-    sol, _, _ = _direct_core(
+    sol, _, _ = direct_core(
         g.topology, integrator, options, moved, g.solution.unknowns, np.float64(0.0)
     )
     return sol, contact_result(moved, sol, jnp.asarray(g.direction))

@@ -287,7 +287,7 @@ class ShootingNewton(optx.AbstractRootFinder):
         finite = jnp.all(jnp.isfinite(y)) & jnp.isfinite(lam)
         return d_y, d_lam, (small < 1.0) & resid & finite
 
-    def _newton_step(self, problem, dy):
+    def newton_step(self, problem, dy):
         cap = self.options.max_rotation_step
         if cap is not None:
             dy = cap_rotation(problem, dy, cap)
@@ -339,10 +339,10 @@ class ShootingNewton(optx.AbstractRootFinder):
         accept = accept | ((st.a < 0.5**MAX_HALVINGS) & ~retry)
         if bordered:
             corrector = lambda dy: self._corrector_step(tr, dy)
-            dy, dlam, conv_arc = branch(on, corrector, lambda d: self._newton_step(problem, d), dy)
+            dy, dlam, conv_arc = branch(on, corrector, lambda d: self.newton_step(problem, d), dy)
             accept = accept | jnp.asarray(on)
         else:
-            dy = self._newton_step(problem, dy)[0]
+            dy = self.newton_step(problem, dy)[0]
         r_next = st.r_next
         if contact:  # (after the cap: r_next is the residual where the step ends)
             halvings = select(on, 0, MAX_HALVINGS) if bordered else MAX_HALVINGS

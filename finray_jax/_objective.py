@@ -17,7 +17,7 @@ from ._grasp import (
 )
 from ._rod import Integrator
 from ._solution import RESULTS
-from ._solve import SolverOptions, _direct_core
+from ._solve import SolverOptions, direct_core
 from .design import design_valid, main_beam_strain
 from .design import set_design as _set_design
 
@@ -90,7 +90,7 @@ def _solve_one(static: Static, base: Finger, x, unknowns, stiffness, closing, pu
     moved = with_stiffness(
         with_objects_moved(finger, -closing * w + pull * e), stiffness[0], stiffness[1]
     )
-    sol, _, _ = _direct_core(static.topology, static.integrator, static.options, moved, unknowns)
+    sol, _, _ = direct_core(static.topology, static.integrator, static.options, moved, unknowns)
     res = contact_result(moved, sol, w)
     if static.objective == "contact_force":
         value = res.normal_force

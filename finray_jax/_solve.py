@@ -37,11 +37,7 @@ from ._steps import natural_residual
 from ._types import check_x64
 
 
-def _natural_fn(y, args):
-    return natural_residual(y, args)
-
-
-def _newton_step(problem, lam, y, linear_solver):
+def newton_step(problem, lam, y, linear_solver):
     """The Newton step J^-1 r at y, the residual r and the sign of det J."""
     solver = linear_solver_of(problem, linear_solver)
     r, factors, sign = solver.linearise(lambda y: natural_residual(y, (problem, lam)), y)
@@ -53,12 +49,12 @@ def _newton_step(problem, lam, y, linear_solver):
 # --------------------------------------------------------------------------------------
 
 
-def _make_problem(topo, integrator, finger) -> Problem:
+def make_problem(topo, integrator, finger) -> Problem:
     geo = geometry(finger)
     return Problem(topo, integrator, finger, geo, segment_table(topo, finger, geo))
 
 
-def _nograd(tree):
+def nograd(tree):
     return jax.tree_util.tree_map(lambda x: lax.stop_gradient(x) if eqx.is_array(x) else x, tree)
 
 
@@ -86,7 +82,7 @@ _core_jit = functools.partial(jax.jit, static_argnums=(0, 1, 2))
 
 
 @functools.partial(_core_jit, static_argnames=("keep_jacobian",))
-def _direct_core(
+def direct_core(
     topo,
     integrator,
     options: SolverOptions,
@@ -95,7 +91,7 @@ def _direct_core(
     ref_sign=None,
     keep_jacobian=False,
 ):
-    """Only the direct Newton solve (compiles in about half the time of `_solve_core`);
+    """Only the direct Newton solve (compiles in about half the time of `solve_core`);
     `solve_finger` falls back to the continuation when it is not accepted.
 
     init: None, scaled unknowns or a `WarmStart`. ref_sign: the sign of det J on the
@@ -103,8 +99,8 @@ def _direct_core(
     keep_jacobian: return the factors of Newton's last linearisation in
     `Solution.jacobian` (banded solver only; what a warm start from this solution
     begins with). Returns (Solution, accepted, sign of det J at the root)."""
-    problem = _make_problem(topo, integrator, finger)
-    quiet = _nograd(problem)
+    problem = make_problem(topo, integrator, finger)
+    quiet = nograd(problem)
     _, y_start, chord = _start(quiet, init)
     direct, ok = _direct(quiet, y_start, options, ref_sign, chord)
     one = jnp.ones(())
@@ -135,7 +131,7 @@ def deformation_of(topo, finger: Finger, unknowns):
     state minus its undeformed one, that is its displacement and rotation (mm, rad) and
     its internal force and moment (zero undeformed) divided by the finger's Young's
     modulus E (mm^2, mm^3)."""
-    problem = _make_problem(topo, None, finger)
+    problem = make_problem(topo, None, finger)
     return _deformation(problem, unknowns.reshape(problem.table.length.shape[0], -1))
 
 
@@ -154,7 +150,7 @@ def start_from_deformation(topo, finger: Finger, deformation):
     failing, against 6); a change of a thickness keeps the forces (in scaled unknowns,
     whose forces are in units of EI_front / L^2, L2 at front thickness x 1.01 took 60
     against 4)."""
-    problem = _make_problem(topo, None, finger)
+    problem = make_problem(topo, None, finger)
     return (problem.undeformed() + deformation / _carry_scale(problem)).reshape(-1)
 
 
@@ -162,15 +158,15 @@ def start_from_deformation(topo, finger: Finger, deformation):
 def undeformed_unknowns(topo, finger: Finger):
     """The scaled unknowns of the undeformed finger (the start `init=None` means): a
     caller that passes them instead of None shares one compiled core for both starts."""
-    return _make_problem(topo, None, finger).undeformed().reshape(-1)
+    return make_problem(topo, None, finger).undeformed().reshape(-1)
 
 
 @_core_jit
-def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
+def solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
     """Direct Newton, else arc-length continuation and Newton again from the point it
     reached, all traced (for jit, vmap, grad): one loop, one Newton (`path`)."""
-    problem = _make_problem(topo, integrator, finger)
-    quiet = _nograd(problem)
+    problem = make_problem(topo, integrator, finger)
+    quiet = nograd(problem)
     y_und, y_start, chord = _start(quiet, init)
     st = path(quiet, y_start, y_und, options, chord, 0 if options.direct_first else 1)
     y, traj = attach_implicit_gradient(problem, st.lam, st.y, options.linear_solver)
@@ -178,8 +174,8 @@ def _solve_core(topo, integrator, options: SolverOptions, finger: Finger, init):
 
 
 @_core_jit
-def _limit_core(topo, integrator, options: SolverOptions, finger: Finger):
-    problem = _nograd(_make_problem(topo, integrator, finger))
+def limit_core(topo, integrator, options: SolverOptions, finger: Finger):
+    problem = nograd(make_problem(topo, integrator, finger))
     y_und = problem.undeformed().reshape(-1)
     s = continuation(problem, y_und, jnp.asarray(jnp.inf), options)
     code = RESULTS.where(s.near_fold, RESULTS.successful, stopped(s))
@@ -195,7 +191,7 @@ def _outputs(problem: Problem, y, lam, code, iterations, traj=None, jacobian=Non
     Y = y.reshape(S, -1)
     s, traj = problem.trajectories(Y, lam, traj)
     # The residual from the trajectories' ends (no second integration).
-    q_problem, q_traj, q_lam = _nograd((problem, traj, lam))
+    q_problem, q_traj, q_lam = nograd((problem, traj, lam))
     r = q_problem.residual_from_states(q_traj[:, 0], q_traj[:, -1], q_lam)
 
     st = traj.reshape(-1, traj.shape[-1])
@@ -302,7 +298,7 @@ def _carried(topo, finger: Finger, init: Solution):
     return _start_from_deformation(topo, finger, init.deformation)
 
 
-def _warm_start(topo, options: SolverOptions, y0, init: Solution | None, concrete: bool):
+def warm_start(topo, options: SolverOptions, y0, init: Solution | None, concrete: bool):
     """The core's `init` for a start at y0 (None: undeformed): with the banded solver a
     `WarmStart` carrying init's Jacobian factors when it has them (eagerly, zero factors
     unused when it has none, so that both share one compiled program)."""
@@ -352,20 +348,18 @@ def solve_finger(
     topo = prepare(finger, mode, topology)
     y0 = None if init is None else _carried(topo, finger, init)
     concrete = _is_concrete((finger, y0))
-    y0 = _warm_start(topo, options, y0, init, concrete and options.direct_first)
+    y0 = warm_start(topo, options, y0, init, concrete and options.direct_first)
     if options.direct_first and concrete:
         # Called eagerly: compile and run the direct solve alone, and compile the
         # continuation only for fingers that need it.
-        sol, ok, _ = _direct_core(
-            topo, integrator, options, finger, y0, keep_jacobian=keep_jacobian
-        )
+        sol, ok, _ = direct_core(topo, integrator, options, finger, y0, keep_jacobian=keep_jacobian)
         if not bool(ok):
             cont = dataclasses.replace(options, direct_first=False)
             failed_its = sol.iterations
-            sol = _solve_core(topo, integrator, cont, finger, None)
+            sol = solve_core(topo, integrator, cont, finger, None)
             sol = eqx.tree_at(lambda x: x.iterations, sol, sol.iterations + failed_its)
     else:
-        sol = _solve_core(topo, integrator, options, finger, y0)
+        sol = solve_core(topo, integrator, options, finger, y0)
     if throw and sol.result != RESULTS.successful:
         raise RuntimeError(f"solve_finger: {sol.status}: {RESULTS[sol.result]}")
     return sol
@@ -402,5 +396,5 @@ def limit_load(
     on the loading branch (refined to about min_arc_step^2 in the scaled arc length).
     """
     topo = prepare(finger, mode, topology)
-    lam, sol = _limit_core(topo, integrator, options, finger)
+    lam, sol = limit_core(topo, integrator, options, finger)
     return LimitLoad(lam, sol)

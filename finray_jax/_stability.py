@@ -39,7 +39,7 @@ import scipy.linalg
 from ._finger import FingerError
 from ._members import energy
 from ._rod import flow_jacobians
-from ._solve import _make_problem
+from ._solve import make_problem
 
 KIN = slice(0, 3)  # (x, z, theta) in a planar state
 WRENCH = slice(3, 6)  # (nx, nz, my)
@@ -165,7 +165,7 @@ def _at_equilibrium(topo, integrator, finger, Y, lam):
     """Every segment's flow Jacobian at every step point, (S, steps + 1, n_full, k), with
     the contact law on every segment (exact where none acts); the unknowns' scale, the
     segments' lengths and rigid parts, and the length and force scales."""
-    problem = _make_problem(topo, integrator, finger)
+    problem = make_problem(topo, integrator, finger)
     Y = jnp.reshape(Y, (topo.n_segments, -1))
     starts = problem.start_states(Y)
     Q = problem.params(lam)

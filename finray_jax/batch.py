@@ -204,7 +204,7 @@ def _direct(topo, integrator, options, outputs, base: Finger, init, values):
     finger, valid = _prepare(topo, base, values)
     if init is not None:
         init = _solve.start_from_deformation(topo, finger, init)
-    sol, ok, _ = _solve._direct_core(topo, integrator, options, finger, init)
+    sol, ok, _ = _solve.direct_core(topo, integrator, options, finger, init)
     return _pack(sol, finger, outputs, valid), ok & valid
 
 

@@ -69,7 +69,7 @@ def check_banded_step(finger, topo, at=None):
     stiff support's penalty makes a random state meaningless (with the whole supported
     length pressed in, the shooting grows exponentially along it: cond J ~ 1e35 at a
     1e-3 perturbation, where the sign of det J is round-off; ~1e12 at the equilibrium)."""
-    problem = _solve._make_problem(topo, fr.Integrator(), finger)
+    problem = _solve.make_problem(topo, fr.Integrator(), finger)
     if at is None:
         rng = np.random.default_rng(0)
         y = problem.undeformed().reshape(-1)
@@ -81,9 +81,9 @@ def check_banded_step(finger, topo, at=None):
 
     @eqx.filter_jit
     def everything(problem, y):
-        fn = lambda y: _solve._natural_fn(y, (problem, lam))
+        fn = lambda y: _solve.natural_residual(y, (problem, lam))
         r, A = _banded.linearize(plan, fn, y)
-        dy, r2, sign = _solve._newton_step(problem, lam, y, "banded")
+        dy, r2, sign = _solve.newton_step(problem, lam, y, "banded")
         Jc = _banded.dense(plan, _banded.compressed(plan, fn, y)[1])
         return jax.jacfwd(fn)(y), r, A, dy, r2, sign, Jc
 
@@ -225,7 +225,7 @@ def test_reduced_direction_flow_jvp_is_exact(grasped, mode):
         (fr.ref_finger_a("L1"), fr.topology_of(fr.ref_finger_a("L1"), mode)),
         (grasped.finger, dataclasses.replace(grasped.topology, mode=mode)),
     ):
-        problem = _solve._make_problem(topo, fr.Integrator(), finger)
+        problem = _solve.make_problem(topo, fr.Integrator(), finger)
         model = problem.model
         Y = problem.undeformed() * problem.scale()
         Y = Y + 1e-2 * jnp.asarray(rng.standard_normal(Y.shape)) * problem.scale()
@@ -262,7 +262,7 @@ def test_banded_lu_is_a_lineax_solver():
 
     finger = fr.ref_finger_a("L1")
     topo = fr.topology_of(finger, "planar")
-    problem = _solve._make_problem(topo, fr.Integrator(), finger)
+    problem = _solve.make_problem(topo, fr.Integrator(), finger)
     rng = np.random.default_rng(1)
     y = problem.undeformed().reshape(-1)
     y = y + 1e-2 * jnp.asarray(rng.standard_normal(y.shape))
@@ -299,7 +299,7 @@ def test_optimistix_adjoint_with_banded_lu_gives_the_same_gradient():
 
     def root(t, how):
         finger = eqx.tree_at(lambda f: f.front.thickness, base, t)
-        problem = _solve._make_problem(topo, fr.Integrator(), finger)
+        problem = _solve.make_problem(topo, fr.Integrator(), finger)
         if how == "project":
             return attach_implicit_gradient(problem, one, y, "banded")[0]
         inputs = (problem, one, jax.lax.stop_gradient(y))

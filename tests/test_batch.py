@@ -168,9 +168,9 @@ def test_warm_started_batch_gives_the_same_answers_in_fewer_iterations(clean):
     for i in range(len(res.iterations)):
         finger = design.set_design(BASE, {k: v[i] for k, v in values.items()})
         start = _solve.start_from_deformation(topo, finger, deformation)
-        single = _solve._direct_core(topo, fr.Integrator(), newton, finger, start)[0]
+        single = _solve.direct_core(topo, fr.Integrator(), newton, finger, start)[0]
         assert int(single.iterations) == int(res.iterations[i])
-        own = _solve._direct_core(topo, fr.Integrator(), newton, finger, base_sol.unknowns)[0]
+        own = _solve.direct_core(topo, fr.Integrator(), newton, finger, base_sol.unknowns)[0]
         absolute.append(int(own.iterations))
     assert res.iterations.sum() < sum(absolute), (res.iterations, absolute)
     # the same finger: its own unknowns back, to round-off

@@ -14,7 +14,7 @@ import finray_jax as fr
 import finray_jax.io
 from finray_jax._contact import penalty
 from finray_jax._grasp import Stepper, _closing_step_cap, with_stiffness
-from finray_jax._solve import _direct_core
+from finray_jax._solve import direct_core
 
 # ---------------------------------------------------------------------------------------
 # Objects and the penalty law
@@ -280,7 +280,7 @@ def test_too_few_near_segments_is_reported():
     segments only, the direct solve stops with the result that names the setting."""
     finger = _with_near(_pressed_onto_a_wall(), 8)
     topo = fr.topology_of(finger, "planar")
-    sol, _, _ = _direct_core(
+    sol, _, _ = direct_core(
         topo, fr.Integrator(steps=16), fr.SolverOptions(), finger, None, np.float64(0.0)
     )
     assert not sol.converged
@@ -323,7 +323,7 @@ def test_contact_beyond_the_near_segments_is_found():
         finger = _with_near(base, near)
         topo = fr.topology_of(finger, "planar")
         assert topo.contact.near == near
-        sol, _, _ = _direct_core(
+        sol, _, _ = direct_core(
             topo, fr.Integrator(steps=16), fr.SolverOptions(), finger, None, np.float64(0.0)
         )
         solutions[near] = sol

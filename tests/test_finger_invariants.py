@@ -300,13 +300,13 @@ def test_design_values_do_not_recompile(sol_l1, monkeypatch):
     }
     # Two independent counts, each on an internal of finray_jax/_solve.py (the test fails
     # if either disappears):
-    # - _make_problem runs once per trace of the jitted cores: wrap it with
+    # - make_problem runs once per trace of the jitted cores: wrap it with
     #   eqx.debug.assert_max_traces and count (the jit cache ignores the wrapper);
-    # - the size of the jax.jit caches of _direct_core (the plain Newton solve) and
-    #   _solve_core (with load continuation).
-    counted = eqx.debug.assert_max_traces(_solve._make_problem, max_traces=None)
-    monkeypatch.setattr(_solve, "_make_problem", counted)
-    caches = [core._cache_size for core in (_solve._direct_core, _solve._solve_core)]
+    # - the size of the jax.jit caches of direct_core (the plain Newton solve) and
+    #   solve_core (with load continuation).
+    counted = eqx.debug.assert_max_traces(_solve.make_problem, max_traces=None)
+    monkeypatch.setattr(_solve, "make_problem", counted)
+    caches = [core._cache_size for core in (_solve.direct_core, _solve.solve_core)]
     size0 = [c() for c in caches]
     for name, finger in variants.items():
         assert fr.topology_of(finger, "planar") == fr.topology_of(base, "planar"), name
@@ -359,8 +359,8 @@ def test_a_warm_start_with_poor_factors_still_reaches_the_root(sol_l1, sol_l2):
     topo = fr.topology_of(finger, "planar")
     other = _solve_ok(finger, mode="planar", init=sol_l1)
     _same_root(sol_l2, other)
-    problem = _solve._make_problem(topo, fr.Integrator(), finger)
-    fn = lambda y: _solve._natural_fn(y, (problem, 1.0))
+    problem = _solve.make_problem(topo, fr.Integrator(), finger)
+    fn = lambda y: _solve.natural_residual(y, (problem, 1.0))
     _, A = _banded.linearize(topo.band, fn, sol_l2.unknowns)
     flipped = eqx.tree_at(lambda s: s.jacobian, sol_l2, _banded.factor(topo.band, -A))
     changed = _replace(finger, back=fr.Section(1.5 * 1.01, 20.0))
@@ -634,14 +634,14 @@ def test_bordered_linearisation_gives_the_path_tangent(case, mode):
     [J, dr/dlam]."""
     finger = _ref(case)
     topo = fr.topology_of(finger, mode)
-    problem = _solve._nograd(_solve._make_problem(topo, fr.Integrator(), finger))
+    problem = _solve.nograd(_solve.make_problem(topo, fr.Integrator(), finger))
     half = jax.numpy.asarray(0.5)
     y = _solve.undeformed_unknowns(topo, finger)
     y = _newton.solve_root(problem, y, half, fr.SolverOptions()).y  # an equilibrium
     y = y + 1e-3 * np.cos(np.arange(y.size))  # and a point off it
     solver = _newton.linear_solver_of(problem, "banded")
     r, factors, sign, b = _steps.linearise_arc(problem, half, y, solver, True)
-    fn = lambda a, lam: _solve._natural_fn(a, (problem, lam))
+    fn = lambda a, lam: _solve.natural_residual(a, (problem, lam))
     J = jax.jacfwd(fn)(y, half)
     r_lam = jax.jvp(lambda lam: fn(y, lam), (half,), (jax.numpy.ones(()),))[1]
     np.testing.assert_allclose(r, fn(y, half), rtol=0, atol=1e-13)
@@ -759,11 +759,11 @@ def test_rotation_capped_newton_matches_the_continuation(case):
     does not get there."""
     finger = _ref(case)
     topo = fr.topology_of(finger, "planar")
-    direct, ok, _ = _solve._direct_core(topo, fr.Integrator(), _solve.SolverOptions(), finger, None)
+    direct, ok, _ = _solve.direct_core(topo, fr.Integrator(), _solve.SolverOptions(), finger, None)
     assert bool(ok) and direct.result == fr.RESULTS.successful
     if case == "L2":
         plain = _solve.SolverOptions(max_rotation_step=None)
-        _, plain_ok, _ = _solve._direct_core(topo, fr.Integrator(), plain, finger, None)
+        _, plain_ok, _ = _solve.direct_core(topo, fr.Integrator(), plain, finger, None)
         assert not bool(plain_ok)
     cont = fr.solve_finger(finger, mode="planar", options=_solve.SolverOptions(direct_first=False))
     assert int(direct.iterations) < int(cont.iterations)

@@ -264,7 +264,7 @@ def test_zero_length_segment_has_no_rigid_part_in_its_derivative():
 
     def table(s):
         finger = design.set_design(base, {name: s})
-        return _solve._make_problem(topo, fr.Integrator(), finger).table
+        return _solve.make_problem(topo, fr.Integrator(), finger).table
 
     t, dt = jax.jvp(table, (jnp.asarray(s4),), (jnp.ones(()),))
     zero = np.flatnonzero(np.asarray(t.length) == 0.0)  # (crossbeam 6 ties at s = 105)
@@ -570,7 +570,7 @@ def test_rigid_column_shares_the_length_direction(mode):
     integ = fr.Integrator()
     with pytest.warns(fr.FingerWarning, match=inside):
         y = fr.solve_finger(f, topology=topo).unknowns
-    p = _solve._nograd(_solve._make_problem(topo, integ, f))
+    p = _solve.nograd(_solve.make_problem(topo, integ, f))
     Y0 = p.start_states(y.reshape(p.table.length.shape[0], -1))
     Q = p.params(1.0)
     assert int(jnp.sum(p.table.rigid > 0)) >= 1

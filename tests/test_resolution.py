@@ -179,7 +179,7 @@ def test_grasp_normal_force_estimate_against_a_fine_solve():
 
     from finray_jax import io as fio
     from finray_jax._grasp import contact_result, with_stiffness
-    from finray_jax._solve import _direct_core
+    from finray_jax._solve import direct_core
 
     root = pathlib.Path(__file__).resolve().parents[1]
     finger, _ = fio.load_finger(str(root / "examples" / "grasp_finger1.toml"))
@@ -190,7 +190,7 @@ def test_grasp_normal_force_estimate_against_a_fine_solve():
     assert check.reliable
     moved = with_stiffness(g.finger, g.stiffness)
     integ = dataclasses.replace(g.integrator, steps=128)
-    fine, _, _ = _direct_core(
+    fine, _, _ = direct_core(
         g.topology, integ, fr.SolverOptions(), moved, g.solution.unknowns, np.float64(0.0)
     )
     assert fine.status == "converged"

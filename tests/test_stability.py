@@ -14,7 +14,7 @@ from finray_jax import _fold, design
 from finray_jax._grasp import Stepper, with_stiffness
 from finray_jax._rod import Integrator, PlanarRod, flow_jacobians
 from finray_jax._solution import RESULTS, status_name
-from finray_jax._solve import SolverOptions, _direct_core
+from finray_jax._solve import SolverOptions, direct_core
 from finray_jax._stability import (
     _full_jacobian,
     condensed_stability,
@@ -140,8 +140,8 @@ def test_smallest_eigenvalue_vanishes_at_the_fold_and_not_before():
     away = np.sign(np.dot(np.asarray(fold.unknowns - stable_sol.unknowns), mode))
     finger = base.scale_loads(0.999 * lam)
     opts = SolverOptions()
-    _, _, sign_stable = _direct_core(topo, integrator, opts, finger, stable_sol.unknowns, 0.0)
-    twin, ok, sign = _direct_core(
+    _, _, sign_stable = direct_core(topo, integrator, opts, finger, stable_sol.unknowns, 0.0)
+    twin, ok, sign = direct_core(
         topo, integrator, opts, finger, fold.unknowns + away * 1e-2 * mode, 0.0
     )
     assert bool(ok)

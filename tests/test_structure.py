@@ -9,16 +9,8 @@ import pathlib
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "finray_jax"
 INIT = "__init__"
 
-# Private names of finray_jax/_solve.py and finray_jax/_banded.py that other modules still
-# use while those two modules are being rewritten. TO BE EMPTIED: the rewrite makes each
-# name public (or moves it to the module that uses it) and removes it here.
-ALLOWED_PRIVATE = {
-    ("_solve", "_direct_core"),
-    ("_solve", "_limit_core"),
-    ("_solve", "_make_problem"),
-    ("_solve", "_natural_fn"),
-    ("_solve", "_nograd"),
-}
+# Private names another module may use (none: a shared name is public where it is defined).
+ALLOWED_PRIVATE: set[tuple[str, str]] = set()
 
 
 def _modules() -> dict[str, ast.Module]:
