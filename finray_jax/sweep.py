@@ -18,10 +18,10 @@ import io
 import json
 import math
 import os
-import time
 from collections.abc import Callable
 
 import numpy as np
+import tqdm
 
 from . import io as fio
 from ._finger import Finger, FingerError
@@ -426,28 +426,21 @@ def _rows(sweep: Sweep, first: int, res, reasons) -> str:
     return "".join(lines)
 
 
-class _Progress:
-    def __init__(self, total: int, done: int, stream):
-        self.total, self.start_done, self.stream = total, done, stream
-        self.t0 = time.perf_counter()
-        self.tty = getattr(stream, "isatty", lambda: False)()
-        self.bad = 0
-
-    def update(self, done: int, bad: int) -> None:
-        self.bad += bad
-        if self.stream is None:
-            return
-        frac = done / max(self.total, 1)
-        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
-        rate = (done - self.start_done) / max(time.perf_counter() - self.t0, 1e-9)
-        eta = (self.total - done) / rate if rate > 0 else float("inf")
-        text = (
-            f"sweep [{bar}] {done}/{self.total} designs ({100 * frac:.0f} %), "
-            f"{rate:.3g} designs/s, eta {eta:.0f} s, {self.bad} not converged"
-        )
-        end = "\r" if self.tty and done < self.total else "\n"
-        self.stream.write(("\r" if self.tty else "") + text + end)
-        self.stream.flush()
+def _progress_bar(total: int, done: int, stream):
+    """A tqdm bar on `stream` (None: none): designs done of the sweep, designs/s, the time
+    left, and how many designs did not converge."""
+    bar = tqdm.tqdm(
+        total=total,
+        initial=done,
+        file=stream,
+        disable=stream is None,
+        unit=" designs",
+        desc="sweep",
+        dynamic_ncols=True,
+        mininterval=0.5,
+    )
+    bar.set_postfix_str("0 not converged", refresh=False)
+    return bar
 
 
 @dataclasses.dataclass(frozen=True)
@@ -498,41 +491,45 @@ def run_sweep(
     designs = sweep.designs()
     diagnose = Diagnosis(sweep.finger, sweep.mode)
     done = _resume(sweep, csv_path, designs, diagnose)
-    bar = _Progress(sweep.size, done, progress)
-    if done < sweep.size:
-        if sweep.settings.grasp is not None:
-            batches = iter_grasps(
-                sweep.finger,
-                designs,
-                sweep.outputs,
-                grasp_kwargs=sweep.settings.grasp.grasp_kwargs(),
-                release_kwargs={"step": sweep.settings.grasp.pull_step},
-                mode=sweep.mode,
-                chunk_size=sweep.chunk_size or GRASP_CHUNK,
-                start=done,
-            )
-        else:
-            batches = iter_batch(
-                sweep.finger,
-                designs,
-                sweep.outputs,
-                mode=sweep.mode,
-                chunk_size=sweep.chunk_size,
-                integrator=sweep.settings.integrator,
-                options=sweep.settings.options,
-                start=done,
-            )
-        with open(csv_path, "a", encoding="utf-8", newline="") as fh:
-            for chunks, (first, res) in enumerate(batches, start=1):
-                fh.write(_rows(sweep, first, res, _reasons(res, diagnose)))
-                fh.flush()
-                os.fsync(fh.fileno())
-                done = first + res.size
-                bar.update(done, int(np.sum(res.status != "converged")))
-                if after_chunk is not None:
-                    after_chunk(done)
-                if max_chunks is not None and chunks >= max_chunks:
-                    break
+    bar = _progress_bar(sweep.size, done, progress)
+    failed = 0
+    with bar:
+        if done < sweep.size:
+            if sweep.settings.grasp is not None:
+                batches = iter_grasps(
+                    sweep.finger,
+                    designs,
+                    sweep.outputs,
+                    grasp_kwargs=sweep.settings.grasp.grasp_kwargs(),
+                    release_kwargs={"step": sweep.settings.grasp.pull_step},
+                    mode=sweep.mode,
+                    chunk_size=sweep.chunk_size or GRASP_CHUNK,
+                    start=done,
+                )
+            else:
+                batches = iter_batch(
+                    sweep.finger,
+                    designs,
+                    sweep.outputs,
+                    mode=sweep.mode,
+                    chunk_size=sweep.chunk_size,
+                    integrator=sweep.settings.integrator,
+                    options=sweep.settings.options,
+                    start=done,
+                )
+            with open(csv_path, "a", encoding="utf-8", newline="") as fh:
+                for chunks, (first, res) in enumerate(batches, start=1):
+                    fh.write(_rows(sweep, first, res, _reasons(res, diagnose)))
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                    bar.update(first + res.size - done)
+                    done = first + res.size
+                    failed += int(np.sum(res.status != "converged"))
+                    bar.set_postfix_str(f"{failed} not converged")
+                    if after_chunk is not None:
+                        after_chunk(done)
+                    if max_chunks is not None and chunks >= max_chunks:
+                        break
     figure = None
     data = read_results(csv_path)
     if done == sweep.size:

@@ -153,7 +153,8 @@ def test_max_chunks_and_the_cli(sweep_file, tmp_path):
     code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out), "--max-chunks", "1"])
     assert code == 0, err
     assert "4 of 6 designs" in stdout and "run the same command to continue" in stdout
-    assert "sweep [" in err  # the progress line
+    # the progress bar (tqdm): designs done of the sweep, and those that did not converge
+    assert "sweep:" in err and "4/6" in err and "0 not converged" in err, err
     code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out)])
     assert code == 0, err
     assert "6 of 6 designs: 6 converged" in stdout
