@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 import finray_jax as fr
-from finray_jax.io import load_finger
+from finray_jax.io import FingerFileError, load_finger
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RTOL = 1e-10
@@ -44,7 +44,7 @@ def record():
     for path in sorted((ROOT / "examples").glob("*.toml")):
         try:
             finger, settings = load_finger(path)
-        except Exception:  # (sweep and optimise files are not fingers)
+        except FingerFileError:  # (sweep and optimisation files are not fingers)
             continue
         if finger.objects:
             continue

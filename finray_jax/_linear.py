@@ -47,10 +47,10 @@ class BandedLU(lx.AbstractLinearSolver):
         """J^-1 r from the factors of J."""
         return _banded.solve_factored(self.plan, factors, r)
 
-    def no_factors(self, y, fn=None, lam=None):
+    def no_factors(self, fn, y):
         """Zero factors of `linearise`'s shapes (a loop's initial carry; no trace of a
         linearisation)."""
-        del fn, lam
+        del fn
         return _banded.no_factors(self.plan, y.dtype)
 
     # lineax's interface (optimistix's implicit adjoint solves through it).
@@ -62,7 +62,7 @@ class BandedLU(lx.AbstractLinearSolver):
                 f"BandedLU: the operator is {operator.out_size()} x {operator.in_size()}, "
                 f"its band plan {self.plan.n} x {self.plan.n}"
             )
-        dtype = jax.eval_shape(lambda: operator.out_structure()).dtype
+        dtype = operator.out_structure().dtype
         return self.factor_map(operator.mv, dtype), eqxi.Static(False)
 
     def compute(self, state, vector, options):
@@ -100,7 +100,7 @@ class DenseLU(lx.AbstractLinearSolver):
     def apply(self, factors, r):
         return jax.scipy.linalg.lu_solve(factors, r)
 
-    def no_factors(self, y, fn=None, lam=None):
+    def no_factors(self, fn, y):
         shapes = jax.eval_shape(lambda: self.linearise(fn, y))[1]
         return jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), shapes)
 

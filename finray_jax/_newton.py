@@ -194,8 +194,7 @@ class ShootingNewton(optx.AbstractRootFinder):
         S = problem.table.length.shape[0]
         choosing = self._choosing(problem)
         # (the factors' shapes do not depend on `order`; no trace of a linearisation)
-        factors = self.solver.no_factors(y0, lambda y: natural_residual(y, args), lam)
-        factors = jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), factors)
+        factors = self.solver.no_factors(lambda y: natural_residual(y, args), y0)
         sign, reuse, r_next = jnp.asarray(0.0), jnp.asarray(False), jnp.zeros_like(y0)
         order = jnp.argsort(problem.gaps(y0.reshape(S, -1), lam)) if choosing else None
         chord = self.chord

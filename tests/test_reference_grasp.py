@@ -197,10 +197,10 @@ from finray_jax.io import load_finger
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = pathlib.Path(__file__).parent / "data" / "grasp_opensees.json"
 REF = json.loads(DATA.read_text())
-CASES = {  # case: (example file, contact.max_penetration, integration steps per segment)
-    "original": ("grasp_finger1.toml", 0.02, 16),
-    "modified": ("grasp_finger1_modified.toml", 0.02, 16),
-    "modified_tight": ("grasp_finger1_modified.toml", 0.002, 16),
+CASES = {  # case: (example file, contact.max_penetration)
+    "original": ("grasp_finger1.toml", 0.02),
+    "modified": ("grasp_finger1_modified.toml", 0.02),
+    "modified_tight": ("grasp_finger1_modified.toml", 0.002),
 }
 CLOSINGS = (2.0, 4.0, 6.0)
 K_REL = 1e-4  # the default grasp's penalty stiffnesses against the stored ones
@@ -223,7 +223,7 @@ def _with_contact(finger, **values):
 
 def _finger(case, **values):
     """The case's finger at its max_penetration, with any other Contact fields given."""
-    name, frac, _ = CASES[case]
+    name, frac = CASES[case]
     finger, _ = load_finger(ROOT / "examples" / name)
     return _with_contact(finger, max_penetration=frac, **values)
 
@@ -233,10 +233,6 @@ def _at_stiffness(case, d, finger=None):
     ref = REF[case][f"{d:g}"]
     finger = _finger(case) if finger is None else finger
     return _with_contact(finger, stiffness=ref["k"], support_stiffness=ref["k_s"])
-
-
-def _integrator(case):
-    return fr.Integrator(steps=CASES[case][2])
 
 
 # The cases solved at the reference's stiffnesses with stiffen=False. Not modified_tight:
@@ -253,9 +249,7 @@ def grasps():
     for case in AT_STIFFNESS:
         for d in CLOSINGS:
             ref = REF[case][f"{d:g}"]
-            g = fr.grasp(
-                _at_stiffness(case, d), closing=d, stiffen=False, integrator=_integrator(case)
-            )
+            g = fr.grasp(_at_stiffness(case, d), closing=d, stiffen=False)
             assert g.converged, (case, d, g.solution.message)
             assert float(g.stiffness) == ref["k"] and float(g.support_stiffness) == ref["k_s"]
             out[case, d] = g
