@@ -1,0 +1,483 @@
+"""Reading a finger file (TOML) into a `Finger` and its `SolveSettings`.
+
+One reader per table, each checking its keys and values as it reads them, so the first
+mistake met stops the read with a message naming the key path (format reference:
+docs/finger-format.md). Units: mm, N, MPa; points are (x, z).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import os
+import re
+from importlib import resources
+
+import numpy as np
+
+from ._bases import BASES
+from ._contact import Contact
+from ._errors import FingerError
+from ._finger import (
+    Adaptor,
+    Crossbeams,
+    DistributedLoad,
+    Finger,
+    Material,
+    PointLoad,
+    Section,
+    check_mode_carries_loads,
+    validate_finger,
+)
+from ._geometry import TORSIONS
+from ._objects import OBJECT_KINDS
+from ._solve_settings import SolveSettings, read_grasp_table, read_solver_table
+from ._toml_reader import (
+    KEY_HELP,
+    FingerFileError,
+    TomlReader,
+    parse_toml,
+    read_text,
+    type_name,
+)
+
+LOAD_KINDS = ("point", "distributed")
+
+#: Each object kind's keys in an [[objects]] table: (required, optional).
+OBJECT_KEYS = {
+    "circle": (("center", "radius"), ()),
+    "ellipse": (("center", "semi_axes"), ("angle_deg",)),
+    "rounded_rectangle": (("center", "half_size"), ("corner_radius", "angle_deg")),
+    "polygon": (("vertices",), ("center", "corner_radius", "angle_deg")),
+    "half_plane": (("point", "normal"), ()),
+}
+
+_TOP_KEYS = (
+    "meta",
+    "torsion",
+    "material",
+    "front",
+    "back",
+    "crossbeams",
+    "crossbeam_pattern",
+    "adaptor",
+    "loads",
+    "solver",
+    "objects",
+    "contact",
+    "grasp",
+)
+_TOP_HINTS = {
+    "crossbeam": "unknown key (did you mean 'crossbeams'? write one [[crossbeams]] table per "
+    "crossbeam)",
+    "load": "unknown key (did you mean 'loads'? write one [[loads]] table per load)",
+}
+
+_CONTACT_KEYS = (
+    "stiffness",
+    "max_penetration",
+    "support_stiffness",
+    "max_support_penetration",
+    "friction",
+    "friction_regularisation",
+    "segment_length",
+    "near_segments",
+    "member_contact",
+    "member_stiffness",
+    "max_member_penetration",
+    "member_reach",
+)
+
+
+def loads_finger(text: str, *, source: str = "<string>") -> tuple[Finger, SolveSettings]:
+    """Read a finger from TOML text. `source` names it in error messages."""
+    r = TomlReader(source)
+    doc = parse_toml(text, source, FingerFileError)
+    return _parse(doc, r)
+
+
+def load_finger(path) -> tuple[Finger, SolveSettings]:
+    """Read a finger file (TOML). Returns the finger and its solve settings.
+
+    Raises FingerFileError (a ValueError) naming the file, the key and the bad value.
+    """
+    path = os.fspath(path)
+    text = read_text(path, "finger", FingerFileError)
+    return loads_finger(text, source=path)
+
+
+# -- the document ----------------------------------------------------------------------
+
+
+def _parse(doc: dict, r: TomlReader) -> tuple[Finger, SolveSettings]:
+    """The finger and settings of a parsed document, every table checked."""
+    r.table(doc, "", _TOP_KEYS, required=("material", "front", "back"), hints=_TOP_HINTS)
+    if "crossbeams" in doc and "crossbeam_pattern" in doc:
+        raise r.error(
+            "crossbeam_pattern",
+            "give either [[crossbeams]] tables or one [crossbeam_pattern], not both",
+        )
+    name, description = _read_meta(doc.get("meta", {}), r)
+    torsion = r.choice(doc.get("torsion", "paper"), "torsion", TORSIONS)
+    material = _read_material(doc["material"], r)
+    beams = _read_beams(doc["front"], doc["back"], r)
+    crossbeams = _read_crossbeams(doc, r, beams)
+    n_cb = int(np.shape(crossbeams.front_s)[0])
+    adaptor = _read_adaptor(doc.get("adaptor", {}), r)
+    objects = tuple(
+        _read_object(o, f"objects[{i}]", r)
+        for i, o in enumerate(r.array_of_tables(doc.get("objects", []), "objects"))
+    )
+    contact = _read_contact(doc.get("contact", {}), r)
+    loads = tuple(
+        _read_load(ld, f"loads[{j}]", r, n_cb)
+        for j, ld in enumerate(r.array_of_tables(doc.get("loads", []), "loads"))
+    )
+    settings = read_solver_table(doc.get("solver", {}), r, name, description)
+    if "grasp" in doc:
+        settings = dataclasses.replace(settings, grasp=read_grasp_table(doc["grasp"], r))
+    finger = Finger(
+        material=material,
+        crossbeams=crossbeams,
+        adaptor=adaptor,
+        loads=loads,
+        torsion=torsion,
+        objects=objects,
+        contact=contact,
+        **beams,
+    )
+    _validate(finger, settings, doc, r)
+    return finger, settings
+
+
+def _validate(finger: Finger, settings: SolveSettings, doc: dict, r: TomlReader) -> None:
+    """The finger's own checks, their messages in the file's key paths."""
+    try:
+        validate_finger(finger)
+        check_mode_carries_loads(finger, settings.mode)
+    except FingerError as e:
+        msg = toml_paths(str(e))
+        if "crossbeam_pattern" in doc and "crossbeam" in msg:
+            msg += " (crossbeams generated by [crossbeam_pattern], numbered from 0)"
+        raise FingerFileError(f"{r.source}: {msg}") from None
+
+
+def toml_paths(msg: str) -> str:
+    """Rename validate_finger's field names to the finger file's key paths."""
+    msg = re.sub(r"(?<![\w.])front_base\b", "front.base", msg)
+    msg = re.sub(r"(?<![\w.])back_base\b", "back.base", msg)
+    msg = re.sub(r"^tip\b", "front.tip", msg)
+    msg = re.sub(r"(?<![\w.])tip = ", "front.tip = ", msg)
+    msg = re.sub(r"(?<![\w.])(front|back)_curvature\b", r"\1.curvature", msg)
+    msg = msg.replace("equals tip", "equals front.tip")
+    return msg
+
+
+# -- [meta], [material], [front], [back] -----------------------------------------------
+
+
+def _read_meta(value, r: TomlReader) -> tuple[str, str]:
+    """[meta]: the finger's name and description."""
+    meta = r.table(value, "meta", ("name", "description"))
+    name = r.string(meta.get("name", ""), "meta.name")
+    description = r.string(meta.get("description", ""), "meta.description")
+    return name, description
+
+
+def _read_material(value, r: TomlReader) -> Material:
+    mat = r.table(value, "material", ("E", "nu", "shear_coefficient"), required=("E", "nu"))
+    return Material(
+        E=r.number(mat["E"], "material.E", positive=True),
+        nu=r.number(mat["nu"], "material.nu"),
+        shear_coefficient=r.number(
+            mat.get("shear_coefficient", 5.0 / 6.0), "material.shear_coefficient", positive=True
+        ),
+    )
+
+
+def _read_beams(front_value, back_value, r: TomlReader) -> dict:
+    """[front] and [back]: the Finger's beam fields (base points, shared tip, sections,
+    curvatures), by name."""
+    front = r.table(
+        front_value,
+        "front",
+        ("base", "tip", "thickness", "depth", "tip_thickness", "curvature"),
+        required=("base", "tip", "thickness", "depth"),
+    )
+    back = r.table(
+        back_value,
+        "back",
+        ("base", "thickness", "depth", "tip_thickness", "curvature"),
+        required=("base", "thickness", "depth"),
+        hints={"tip": "the two beams share one tip: give it once, as front.tip"},
+    )
+    beams = {
+        "front_base": r.vector(front["base"], "front.base", 2, "a point [x, z]"),
+        "tip": r.vector(front["tip"], "front.tip", 2, "a point [x, z]"),
+        "back_base": r.vector(back["base"], "back.base", 2, "a point [x, z]"),
+    }
+    for beam, tbl in (("front", front), ("back", back)):
+        curvature = r.number(tbl["curvature"], f"{beam}.curvature") if "curvature" in tbl else 0.0
+        beams[f"{beam}_curvature"] = curvature
+    for beam, tbl in (("front", front), ("back", back)):
+        tip_t = tbl.get("tip_thickness")
+        beams[beam] = Section(
+            r.number(tbl["thickness"], f"{beam}.thickness", positive=True),
+            r.number(tbl["depth"], f"{beam}.depth", positive=True),
+            None if tip_t is None else r.number(tip_t, f"{beam}.tip_thickness", positive=True),
+        )
+    return beams
+
+
+# -- crossbeams ------------------------------------------------------------------------
+
+
+def _read_crossbeams(doc: dict, r: TomlReader, beams: dict) -> Crossbeams:
+    """[[crossbeams]] tables, or the crossbeams a [crossbeam_pattern] generates."""
+    if "crossbeam_pattern" in doc:
+        return _read_pattern(
+            doc["crossbeam_pattern"], r, beams["front_base"], beams["back_base"], beams["tip"]
+        )
+    rows = []
+    for i, cb in enumerate(r.array_of_tables(doc.get("crossbeams", []), "crossbeams")):
+        p = f"crossbeams[{i}]"
+        keys = ("front_s", "back_s", "thickness", "depth")
+        r.table(cb, p, keys, required=keys)
+        rows.append(
+            (
+                r.number(cb["front_s"], f"{p}.front_s"),
+                r.number(cb["back_s"], f"{p}.back_s"),
+                r.number(cb["thickness"], f"{p}.thickness", positive=True),
+                r.number(cb["depth"], f"{p}.depth", positive=True),
+            )
+        )
+    cols = np.asarray(rows, dtype=np.float64).reshape(-1, 4).T
+    return Crossbeams(*cols)
+
+
+def _read_pattern(value, r: TomlReader, front_base, back_base, tip) -> Crossbeams:
+    """[crossbeam_pattern]: `count` evenly spaced crossbeams of one section, their back
+    ends given or placed level with their front ends (horizontal = true)."""
+    p = "crossbeam_pattern"
+    tbl = r.table(
+        value,
+        p,
+        ("count", "front_s", "horizontal", "back_s", "thickness", "depth"),
+        required=("count", "front_s", "thickness", "depth"),
+    )
+    n = r.integer(tbl["count"], f"{p}.count", minimum=1)
+    f0, f1 = r.vector(tbl["front_s"], f"{p}.front_s", 2, "[first, last] front-beam arc lengths")
+    if n == 1 and f0 != f1:
+        raise r.error(
+            f"{p}.front_s", "with count = 1, first and last must be equal", tbl["front_s"]
+        )
+    horizontal = r.boolean(tbl.get("horizontal", False), f"{p}.horizontal")
+    front_s = np.linspace(f0, f1, n)
+    if horizontal and "back_s" in tbl:
+        raise r.error(
+            f"{p}.back_s", "give either horizontal = true or back_s, not both", tbl["back_s"]
+        )
+    if horizontal:
+        fb, bb, tp = (np.asarray(x, dtype=np.float64) for x in (front_base, back_base, tip))
+        lf, lb = np.linalg.norm(tp - fb), np.linalg.norm(tp - bb)
+        if lf == 0 or abs(tp[1] - bb[1]) < 1e-12 * max(lb, 1.0):
+            raise r.error(
+                f"{p}.horizontal",
+                "needs a back beam that rises in z (back.base and front.tip differ in z)",
+                True,
+            )
+        z = fb[1] + front_s * (tp[1] - fb[1]) / lf
+        back_s = (z - bb[1]) * lb / (tp[1] - bb[1])
+    elif "back_s" in tbl:
+        b0, b1 = r.vector(tbl["back_s"], f"{p}.back_s", 2, "[first, last] back-beam arc lengths")
+        back_s = np.linspace(b0, b1, n)
+    else:
+        raise r.error(f"{p}.back_s", "missing: give back_s = [first, last] or horizontal = true")
+    t = r.number(tbl["thickness"], f"{p}.thickness", positive=True)
+    d = r.number(tbl["depth"], f"{p}.depth", positive=True)
+    return Crossbeams(front_s, back_s, np.full(n, t), np.full(n, d))
+
+
+# -- [adaptor], [[objects]], [contact] -------------------------------------------------
+
+
+def _read_adaptor(value, r: TomlReader) -> Adaptor:
+    ad = r.table(
+        value,
+        "adaptor",
+        ("front_base", "back_base", "front_clamp_length", "back_clamp_length", "support_length"),
+    )
+    return Adaptor(
+        front_base=r.choice(ad.get("front_base", "clamped"), "adaptor.front_base", BASES),
+        back_base=r.choice(ad.get("back_base", "clamped"), "adaptor.back_base", BASES),
+        front_clamp_length=r.number(
+            ad.get("front_clamp_length", 0.0), "adaptor.front_clamp_length", nonnegative=True
+        ),
+        back_clamp_length=r.number(
+            ad.get("back_clamp_length", 0.0), "adaptor.back_clamp_length", nonnegative=True
+        ),
+        support_length=None
+        if "support_length" not in ad
+        else r.number(ad["support_length"], "adaptor.support_length", nonnegative=True),
+    )
+
+
+def _read_object(value, p: str, r: TomlReader):
+    """One [[objects]] table: kind, then the kind's keys (points (x, z) in mm, angles in
+    degrees)."""
+    if not isinstance(value, dict):
+        raise r.error(p, f"expected a table [[objects]], got {type_name(value)}", value)
+    if "kind" not in value:
+        raise r.error(f"{p}.kind", f"missing required key (one of {', '.join(OBJECT_KEYS)})")
+    kind = r.string(value["kind"], f"{p}.kind", tuple(OBJECT_KEYS))
+    need, optional = OBJECT_KEYS[kind]
+    tbl = r.table(value, p, ("kind",) + need + optional, required=need)
+    args = {}
+    for key in need + optional:
+        if key not in tbl:
+            continue
+        path = f"{p}.{key}"
+        if key in ("center", "point", "normal"):
+            args[key] = r.vector(tbl[key], path, 2, "a point [x, z]")
+        elif key in ("semi_axes", "half_size"):
+            args[key] = r.vector(tbl[key], path, 2, "two lengths [along x, along z]")
+        elif key == "vertices":
+            pts = tbl[key]
+            if not isinstance(pts, list) or len(pts) < 3:
+                raise r.error(path, "must be a list of 3 or more points [x, z]", pts)
+            args[key] = [
+                r.vector(v, f"{path}[{i}]", 2, "a point [x, z]") for i, v in enumerate(pts)
+            ]
+        elif key == "angle_deg":
+            args["angle"] = np.deg2rad(r.number(tbl[key], path))
+        else:
+            args[key] = r.number(tbl[key], path, positive=key == "radius")
+    return OBJECT_KINDS[kind](**args)
+
+
+def _read_contact(value, r: TomlReader) -> Contact:
+    tbl = r.table(value, "contact", _CONTACT_KEYS)
+    args = {}
+    for key in _CONTACT_KEYS:
+        if key == "member_contact" and key in tbl:
+            args[key] = r.boolean(tbl[key], "contact.member_contact")
+        elif key == "near_segments" and key in tbl:  # a count, or "all" (None)
+            v = tbl[key]
+            if isinstance(v, str):
+                r.string(v, "contact.near_segments", ("all",))
+                args[key] = None
+            else:
+                args[key] = r.integer(v, "contact.near_segments", minimum=1)
+        elif key in tbl:
+            args[key] = r.number(
+                tbl[key],
+                f"contact.{key}",
+                positive=key != "friction",
+                nonnegative=key == "friction",
+            )
+    return Contact(**args)
+
+
+# -- [[loads]] -------------------------------------------------------------------------
+
+_POINT_LOAD_HINTS = {
+    "total_force": "a point load takes force = [Fx, Fy, Fz] (N); total_force is for "
+    'kind = "distributed"',
+    "s_range": 'a point load takes s (one arc length, mm); s_range is for kind = "distributed"',
+}
+_DISTRIBUTED_LOAD_HINTS = {
+    "force": "a distributed load takes total_force = [Fx, Fy, Fz], its resultant in N "
+    '(spread uniformly over s_range); force is for kind = "point"',
+    "s": 'a distributed load takes s_range = [s0, s1] (mm); s is for kind = "point"',
+    "moment": "a distributed load carries no moment; add a point load for one",
+}
+
+
+def _read_load(value, p: str, r: TomlReader, n_cb: int):
+    """One [[loads]] table: a point load or a distributed one, on a beam."""
+    if not isinstance(value, dict):
+        raise r.error(p, "expected a table", value)
+    if "kind" not in value:
+        raise r.error(f"{p}.kind", "missing required key" + KEY_HELP["kind"])
+    kind = r.string(value["kind"], f"{p}.kind", LOAD_KINDS)
+    if kind == "point":
+        allowed, required = ("kind", "beam", "s", "force", "moment"), ("beam", "s", "force")
+        hints = _POINT_LOAD_HINTS
+    else:
+        allowed, required = (
+            ("kind", "beam", "s_range", "total_force"),
+            ("beam", "s_range", "total_force"),
+        )
+        hints = _DISTRIBUTED_LOAD_HINTS
+    r.table(value, p, allowed, required=required, hints=hints)
+    beam = _read_beam_index(value["beam"], f"{p}.beam", r, n_cb)
+    if kind == "point":
+        return PointLoad(
+            beam,
+            r.number(value["s"], f"{p}.s"),
+            r.vector(value["force"], f"{p}.force", 3, "a force [Fx, Fy, Fz] in N"),
+            r.vector(
+                value.get("moment", [0.0, 0.0, 0.0]),
+                f"{p}.moment",
+                3,
+                "a moment [Mx, My, Mz] in N mm",
+            ),
+        )
+    s_range = r.vector(value["s_range"], f"{p}.s_range", 2, "[s0, s1] in mm")
+    if not s_range[0] < s_range[1]:
+        raise r.error(f"{p}.s_range", "needs s0 < s1", value["s_range"])
+    return DistributedLoad(
+        beam,
+        s_range,
+        r.vector(value["total_force"], f"{p}.total_force", 3, "a force [Fx, Fy, Fz] in N"),
+    )
+
+
+def _read_beam_index(value, path: str, r: TomlReader, n_cb: int) -> int:
+    """A load's beam: "front" (0), "back" (1) or crossbeam i (2 + i)."""
+    if isinstance(value, str):
+        if value == "front":
+            return 0
+        if value == "back":
+            return 1
+        close = difflib.get_close_matches(value, ["front", "back"], n=1, cutoff=0.5)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        raise r.error(
+            path, f'must be "front", "back" or a crossbeam index 0..{n_cb - 1}{hint}', value
+        )
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise r.error(
+            path, f'must be "front", "back" or a crossbeam index, got {type_name(value)}', value
+        )
+    if not 0 <= value < n_cb:
+        raise r.error(
+            path,
+            f"no such crossbeam: this finger has {n_cb} crossbeams, indices 0..{n_cb - 1}",
+            value,
+        )
+    return 2 + value
+
+
+# -- finger files shipped with the package (finray_jax/data/) --------------------------
+
+# Finger-1 (assumed dimensions; the default finger of `finray demo`, `compare` and
+# `clamp-study`) and its grasps of a cylinder. examples/ holds the same files for users to
+# copy and edit (a test keeps them identical).
+PACKAGED_FINGERS = (
+    "finger1.toml",
+    "grasp_finger1.toml",
+    "grasp_finger1_modified.toml",
+    "grasp_finger1_modified_50mm.toml",
+)
+
+
+def packaged_finger_text(name: str = "finger1.toml") -> str:
+    """The text of a finger file shipped with finray_jax (one of PACKAGED_FINGERS)."""
+    if name not in PACKAGED_FINGERS:
+        raise ValueError(f"no packaged finger file {name!r}: one of {PACKAGED_FINGERS}")
+    return (resources.files("finray_jax") / "data" / name).read_text(encoding="utf-8")
+
+
+def load_packaged_finger(name: str = "finger1.toml") -> tuple[Finger, SolveSettings]:
+    """Read a finger file shipped with finray_jax (default: Finger-1, finger1.toml)."""
+    return loads_finger(packaged_finger_text(name), source=f"<finray_jax data: {name}>")
