@@ -1,0 +1,81 @@
+"""What the `finray` command line's modules share: exit codes, the user-error type, the
+default finger, and the text formatting of numbers, tables and progress lines."""
+
+import math
+import os
+import sys
+
+EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
+EXIT_INTERRUPTED = 130  # (128 + SIGINT, as a shell reports it)
+STATUS_EXIT = {
+    "converged": EXIT_OK,
+    "beyond_limit_load": EXIT_BEYOND,
+    "unstable": EXIT_FAILED,
+    "failed": EXIT_FAILED,
+}
+
+# The default finger of `finray demo`, `compare` and `clamp-study`: Finger-1, shipped as
+# package data (finray_jax/data/finger1.toml, the same file as examples/finger1.toml).
+DEMO_FINGER = "finger1.toml"
+
+
+class UserError(Exception):
+    """A mistake in the command line or its inputs: reported in one line, exit code 1."""
+
+
+def num(x, digits=4) -> str:
+    """A number to `digits` significant digits ("nan" where it is not finite)."""
+    x = float(x)
+    if not math.isfinite(x):
+        return "nan"
+    return f"{x:.{digits}g}"
+
+
+def percent(x) -> str:
+    """A change in percent; "n/a" where a force it compares is unknown (NaN)."""
+    return f"{x:+.0f} %" if math.isfinite(x) else "n/a"
+
+
+def count(n: int, noun: str) -> str:
+    """`n` and the noun, plural unless n is 1."""
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def table(head, rows) -> list[str]:
+    """Aligned text rows, indented by two spaces: the first column left-aligned, the
+    others right-aligned."""
+    widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
+    fmt = lambda r: (
+        "  "
+        + "  ".join(
+            str(c).ljust(w) if i == 0 else str(c).rjust(w)
+            for i, (c, w) in enumerate(zip(r, widths, strict=True))
+        )
+    )
+    return [fmt(head)] + [fmt(r) for r in rows]
+
+
+def progress(msg):
+    """A progress line on stderr (stdout keeps the results)."""
+    print(f"  ... {msg}", file=sys.stderr, flush=True)
+
+
+def shown_path(path) -> str:
+    """A path relative to the working directory when it lies below it."""
+    rel = os.path.relpath(path)
+    return path if rel.startswith("..") else rel
+
+
+def say_interrupted(csv_path: str, what: str) -> None:
+    """The interrupt's one line: how many finished rows the CSV keeps (none: nothing to
+    continue from, a re-run starts afresh)."""
+    try:
+        with open(csv_path, encoding="utf-8") as fh:
+            rows = max(sum(1 for line in fh if line.strip()) - 1, 0)
+    except OSError:
+        rows = 0
+    if rows:
+        kept = f"{rows} finished {what} are in {csv_path}: run the same command to continue"
+    else:
+        kept = f"no {what} had finished (nothing written yet): the same command starts afresh"
+    print(f"finray: interrupted; {kept}", file=sys.stderr)
