@@ -26,7 +26,8 @@ from jax import lax
 
 import finray_jax as fr
 from finray_jax import _solve
-from finray_jax._rod import PlanarRod, _rk_step
+from finray_jax._integrator import rk_step
+from finray_jax._rod import PlanarRod
 
 
 def finger_with_crossbeams(n):
@@ -88,7 +89,7 @@ def floor(repeats):
     def many(y0):
         f = lambda t, yy: md.rhs(t, yy, q)
         return lax.scan(
-            lambda yy, i: (_rk_step(integ.solver.tableau, f, 0.0, yy, 1e-3), None),
+            lambda yy, i: (rk_step(integ.solver.tableau, f, 0.0, yy, 1e-3), None),
             y0,
             jnp.arange(n_steps),
         )[0]

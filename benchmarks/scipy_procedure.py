@@ -200,7 +200,7 @@ class ShootingModel:
         if f(finger.front_curvature) or f(finger.back_curvature):
             raise ValueError("straight main beams only")
         ad = finger.adaptor
-        if (ad.front_base, ad.back_base) != ("clamped", "clamped"):
+        if (ad.front_base.name, ad.back_base.name) != ("clamped", "clamped"):
             raise ValueError("clamped bases only")
         if f(ad.front_clamp_length) or f(ad.back_clamp_length):
             raise ValueError("no adaptor clamp length")

@@ -14,7 +14,7 @@ Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   `solve_finger(init=)` starts it (the iterations from its scaled unknowns beside it).
 Baselines timed in the same run for L1, so figures from noisy machines can be compared:
 the same solve through `diffrax.diffeqsolve` instead of the tableau stepper, and with
-the dense LU (`SolverOptions(linear_solver="dense")`) instead of the banded one, and
+the dense LU (`SolverOptions(linear_solver=fr.DenseLinearSolver())`) instead of the banded one, and
 (every case) Newton without chord steps (`SolverOptions(reuse_jacobian=False)`).
 
 And what a new process pays for its first `solve_finger` (as in a CLI run, which keeps
@@ -188,14 +188,16 @@ def main():
             f"(import {row['filled_cache']['import_s']:.1f} s)",
             flush=True,
         )
-    base = bench_case("L1", "planar", fr.Integrator(backend="diffeqsolve"), repeats=5)
+    base = bench_case("L1", "planar", fr.Integrator(backend=fr.DiffeqsolveBackend()), repeats=5)
     print(
         f"baseline diffeqsolve L1 planar: compile {base['compile_s']:.1f} s  cold "
         f"{base['cold_ms']:.2f} ms  warm {base['warm_ms']:.2f} ms"
     )
     dense = []
     for mode in ("planar", "spatial"):
-        d = bench_case("L1", mode, repeats=5, opts=fr.SolverOptions(linear_solver="dense"))
+        d = bench_case(
+            "L1", mode, repeats=5, opts=fr.SolverOptions(linear_solver=fr.DenseLinearSolver())
+        )
         dense.append(d)
         print(
             f"baseline dense LU L1 {mode}: compile {d['compile_s']:.1f} s  cold "

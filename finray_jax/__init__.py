@@ -7,11 +7,17 @@ import jax as _jax
 if _os.environ.get("FINRAY_NO_AUTO_X64", "0") != "1":
     _jax.config.update("jax_enable_x64", True)
 
+from ._bases import AbstractBase as AbstractBase
+from ._bases import ClampedBase as ClampedBase
+from ._bases import FreeBase as FreeBase
+from ._bases import PinnedBase as PinnedBase
 from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._cantilever import CantileverSolution as CantileverSolution
 from ._cantilever import solve_cantilever as solve_cantilever
 from ._contact import Contact as Contact
 from ._contact import with_friction as with_friction
+from ._contact_result import ContactResult as ContactResult
+from ._contact_result import contact_result as contact_result
 from ._errors import FingerError as FingerError
 from ._errors import FingerWarning as FingerWarning
 from ._finger import Adaptor as Adaptor
@@ -26,24 +32,32 @@ from ._fold import Fold as Fold
 from ._fold import FoldOptions as FoldOptions
 from ._fold import fold_point as fold_point
 from ._fold import limit_load_factor as limit_load_factor
-from ._grasp import ContactResult as ContactResult
-from ._grasp import GraspSolution as GraspSolution
-from ._grasp import ReleaseTrace as ReleaseTrace
-from ._grasp import contact_result as contact_result
+from ._geometry import AbstractTorsion as AbstractTorsion
+from ._geometry import PaperTorsion as PaperTorsion
+from ._geometry import SaintVenantTorsion as SaintVenantTorsion
 from ._grasp import grasp as grasp
 from ._grasp import regrasp as regrasp
-from ._grasp import release_force as release_force
-from ._grasp import stability as stability
+from ._grasp_solution import GraspSolution as GraspSolution
+from ._grasp_solution import stability as stability
+from ._integrator import AbstractBackend as AbstractBackend
+from ._integrator import DiffeqsolveBackend as DiffeqsolveBackend
+from ._integrator import Integrator as Integrator
+from ._integrator import StepBackend as StepBackend
+from ._integrator import TableauBackend as TableauBackend
 from ._objects import AbstractObject as AbstractObject
 from ._objects import Circle as Circle
 from ._objects import Ellipse as Ellipse
 from ._objects import HalfPlane as HalfPlane
 from ._objects import Polygon as Polygon
 from ._objects import RoundedRectangle as RoundedRectangle
+from ._options import AbstractLinearSolver as AbstractLinearSolver
+from ._options import BandedLinearSolver as BandedLinearSolver
+from ._options import DenseLinearSolver as DenseLinearSolver
 from ._reference import ref_finger_a as ref_finger_a
+from ._release import ReleaseTrace as ReleaseTrace
+from ._release import release_force as release_force
 from ._rigid import RigidEstimate as RigidEstimate
 from ._rigid import rigid_contact_estimate as rigid_contact_estimate
-from ._rod import Integrator as Integrator
 from ._rod import PlanarRod as PlanarRod
 from ._rod import SpatialRod as SpatialRod
 from ._solution import RESULTS as RESULTS

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._banded import BandPlan, plan_band
+from ._bases import AbstractBase
 from ._contact import (
     ContactSpec,
     beam_gaps,
@@ -44,7 +45,7 @@ class Topology:
     """Static description of the shooting problem (hashable)."""
 
     mode: str
-    base_kinds: tuple[str, str]
+    base_kinds: tuple[AbstractBase, AbstractBase]
     n_crossbeams: int
     events: tuple[tuple[tuple[str, int], ...], ...]  # per beam, ordered (kind, index)
     tapered: bool = False  # a main beam's section varies along s
@@ -575,13 +576,7 @@ class Problem(eqx.Module):
         for b in (FRONT, BACK):
             y = starts[topo.first[b]]
             point, theta = geo.base[b], geo.theta[b]
-            kind = topo.base_kinds[b]
-            if kind == "clamped":
-                rows += [md.position_rows(y, point, L), md.orientation_rows(y, theta)]
-            elif kind == "pinned":  # a hinge about y
-                rows += [md.position_rows(y, point, L), md.hinge_rows(y, theta, F, L)]
-            else:
-                rows += [md.force_rows(md.force(y), F), md.moment_rows(md.moment(y), F, L)]
+            rows += topo.base_kinds[b].rows(md, y, point, theta, F, L)
 
         both = jnp.concatenate([starts, ends])  # index i: start of i; S + i: end of i
         # Kinematic pairs: b must equal a turned by their undeformed relative angle

@@ -7,10 +7,10 @@ import optimistix as optx
 
 from ._assembly import SegmentTable
 from ._finger import Material, Section
-from ._geometry import section_stiffness
+from ._geometry import AbstractTorsion, PaperTorsion, as_torsion, section_stiffness
+from ._integrator import Integrator
 from ._rod import (
     TAPER_NODES,
-    Integrator,
     PlanarRod,
     rod_model,
     segment_flow,
@@ -80,7 +80,7 @@ def solve_cantilever(
     mode: str = "planar",
     segments: int = 4,
     integrator: Integrator = Integrator(),
-    torsion: str = "paper",
+    torsion: AbstractTorsion = PaperTorsion(),
 ) -> CantileverSolution:
     """A rod clamped at the origin along +z, loaded at its free end by a dead force (N) and
     moment (N mm) in the world frame, solved by shooting on the base wrench.
@@ -90,6 +90,7 @@ def solve_cantilever(
     tip_thickness tapers linearly from the clamp to the free end.
     """
     check_x64("solve_cantilever")
+    torsion = as_torsion(torsion, "torsion")
     length = as_float(length)
     if not float(length) > 0:
         raise ValueError(f"length must be positive, got {float(length)}")

@@ -29,7 +29,7 @@ from jax import lax
 
 from . import _solve
 from ._finger import Finger
-from ._rod import Integrator
+from ._integrator import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import LimitLoad, SolverOptions
 

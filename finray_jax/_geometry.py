@@ -5,11 +5,15 @@ precurvature; crossbeams are straight between their attachment points. Everythin
 plain jax.numpy: it runs traced inside the solver and eagerly in the validation.
 """
 
+import abc
 import functools
+from typing import ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+
+from ._choices import choice
 
 
 class Geometry(eqx.Module):
@@ -102,20 +106,50 @@ def main_beam_samples(finger, n: int):
     return tuple(jnp.stack(x) for x in zip(*out))
 
 
-def section_stiffness(material, thickness, depth, torsion: str):
+class AbstractTorsion(eqx.Module):
+    """How a rectangular section's torsion constant J is taken; `name` is its word in
+    finger files."""
+
+    name: ClassVar[str]
+
+    @abc.abstractmethod
+    def constant(self, thickness, depth):
+        """J (mm^4) of a thickness x depth rectangle."""
+
+
+class PaperTorsion(AbstractTorsion):
+    """J = Ixx + Iyy, the polar moment, as the paper's model takes it (the default)."""
+
+    name: ClassVar[str] = "paper"
+
+    def constant(self, thickness, depth):
+        return thickness * depth * (thickness**2 + depth**2) / 12.0
+
+
+class SaintVenantTorsion(AbstractTorsion):
+    """Saint-Venant's torsion constant of a solid rectangle (Roark's series to b^4/a^4)."""
+
+    name: ClassVar[str] = "rectangle"
+
+    def constant(self, thickness, depth):
+        a = jnp.maximum(thickness, depth)
+        b = jnp.minimum(thickness, depth)
+        return a * b**3 * (1.0 / 3.0 - 0.21 * (b / a) * (1.0 - b**4 / (12.0 * a**4)))
+
+
+TORSIONS = {kind.name: kind() for kind in (PaperTorsion, SaintVenantTorsion)}
+
+
+def as_torsion(value, field: str = "torsion") -> AbstractTorsion:
+    """A finger's `torsion` as its object (a name is deprecated, see `choice`)."""
+    return choice(value, field, AbstractTorsion, TORSIONS)
+
+
+def section_stiffness(material, thickness, depth, torsion: AbstractTorsion):
     """(..., 6) kGA1, kGA2, EA, EI1, EI2, GJ of a rectangle (thickness in plane)."""
     E, G, k = material.E, material.G, material.shear_coefficient
     A = thickness * depth
     I1 = thickness * depth**3 / 12.0  # about d1: out of plane
     I2 = depth * thickness**3 / 12.0  # about d2: in plane
-    J = torsion_constant(thickness, depth, torsion)
+    J = torsion.constant(thickness, depth)
     return jnp.stack([k * G * A, k * G * A, E * A, E * I1, E * I2, G * J], axis=-1)
-
-
-def torsion_constant(thickness, depth, kind: str):
-    """Torsion constant J of a rectangle: 'paper' Ixx + Iyy, or Saint-Venant's."""
-    if kind == "paper":
-        return thickness * depth * (thickness**2 + depth**2) / 12.0
-    a = jnp.maximum(thickness, depth)
-    b = jnp.minimum(thickness, depth)
-    return a * b**3 * (1.0 / 3.0 - 0.21 * (b / a) * (1.0 - b**4 / (12.0 * a**4)))

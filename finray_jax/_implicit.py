@@ -22,6 +22,7 @@ from jax import lax
 
 from . import _banded
 from ._assembly import Problem
+from ._options import BandedLinearSolver
 from ._rod import apply_flow_jacobians, flow_jacobians
 from ._steps import natural_residual
 
@@ -43,7 +44,7 @@ def attach_implicit_gradient(problem, lam, y, linear_solver):
     (S, steps + 1, n_full) with their tangents, or None (the dense option: the outputs
     then integrate them, and differentiate through the integrator)."""
     y = lax.stop_gradient(y)
-    if linear_solver == "banded":
+    if isinstance(linear_solver, BandedLinearSolver):
         return _implicit_root(problem, lam, y)
     root, _ = optx.internal.implicit_jvp(
         _root_primal, _root_rewrite, (problem, lam, y), frozenset(), lx.LU()

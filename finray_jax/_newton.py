@@ -66,7 +66,7 @@ import optimistix as optx
 from jax import lax
 
 from . import _banded
-from ._linear import BandedLU, DenseLU
+from ._linear import BandedLU
 from ._steps import (
     MAX_HALVINGS,
     backtrack,
@@ -86,9 +86,9 @@ def select(pred, a, b):
     return jnp.where(pred, a, b)
 
 
-def linear_solver_of(problem, name: str):
-    """The linear solver object for `SolverOptions.linear_solver`."""
-    return BandedLU(problem.topo.band) if name == "banded" else DenseLU()
+def linear_solver_of(problem, choice):
+    """The lineax solver `choice` (a `SolverOptions.linear_solver`) gives this problem."""
+    return choice.lineax_solver(problem.topo)
 
 
 class Arc(eqx.Module):

@@ -15,7 +15,7 @@ from ._grasp import (
     with_objects_moved,
     with_stiffness,
 )
-from ._rod import Integrator
+from ._integrator import Integrator
 from ._solution import RESULTS
 from ._solve import SolverOptions, direct_core
 from .design import design_valid, main_beam_strain

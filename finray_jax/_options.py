@@ -1,9 +1,58 @@
 """The numerical choices of the equilibrium solve."""
 
+import abc
+from typing import ClassVar
+
 import equinox as eqx
+import lineax as lx
+
+from ._choices import choice
+from ._linear import BandedLU, DenseLU
 
 MODES = ("auto", "planar", "spatial")
-LINEAR_SOLVERS = ("banded", "dense")
+
+
+class AbstractLinearSolver(eqx.Module):
+    """How Newton's linear systems are solved; `name` is its word in solver files."""
+
+    name: ClassVar[str]
+
+    @abc.abstractmethod
+    def lineax_solver(self, topo) -> lx.AbstractLinearSolver:
+        """The lineax solver for the Jacobians of a problem of this topology."""
+
+
+class BandedLinearSolver(AbstractLinearSolver):
+    """The Jacobian assembled from one forward pass per colour of its block pattern (24
+    tangents for planar ref-A instead of 144), straight into band order, and factored by
+    banded LU with partial pivoting. The implicit gradient and the continuation (its
+    corrector's bordered system, its tangent, the sign of det J) reuse the factors."""
+
+    name: ClassVar[str] = "banded"
+
+    def lineax_solver(self, topo):
+        return BandedLU(topo.band)
+
+
+class DenseLinearSolver(AbstractLinearSolver):
+    """`jax.jacfwd` with one tangent per unknown and a dense LU; the gradient
+    differentiates through the integrator. Same Newton steps as the banded solver to
+    round-off, several times slower: a cross-check."""
+
+    name: ClassVar[str] = "dense"
+
+    def lineax_solver(self, topo):
+        return DenseLU()
+
+
+LINEAR_SOLVERS = {kind.name: kind() for kind in (BandedLinearSolver, DenseLinearSolver)}
+
+
+def as_linear_solver(value) -> AbstractLinearSolver:
+    """`SolverOptions.linear_solver` as its object (a name is deprecated, see `choice`)."""
+    return choice(
+        value, "SolverOptions.linear_solver", AbstractLinearSolver, LINEAR_SOLVERS, ValueError
+    )
 
 
 class SolverOptions(eqx.Module):
@@ -29,26 +78,19 @@ class SolverOptions(eqx.Module):
         line search, ref-A's L2 and L3 are solved directly from the undeformed shape in
         14 and 8 linearisations planar (16 and 8 in 3-D) instead of by 35 and 30
         iterations of continuation.
-    linear_solver: how Newton's linear systems are solved. "banded" (default): the
-        Jacobian is assembled from one forward pass per colour of its block pattern (24
-        tangents for planar ref-A instead of 144) straight into band order and factored
-        by banded LU with partial pivoting (`_banded`); "dense": `jax.jacfwd` with one
-        tangent per unknown and a dense LU. Both give the same Newton steps to round-off.
-        The implicit gradient and the continuation (its corrector's bordered system, by
-        bordering, its tangent and the sign of det J) solve with the same factors.
+    linear_solver: how Newton's linear systems are solved: BandedLinearSolver()
+        (default) or DenseLinearSolver().
     reuse_jacobian: near the root, take chord steps: keep the factors of the last
-        Jacobian and evaluate only the residual (planar ref-A: 0.10 ms instead of 0.45 ms
-        for a Jacobian pass and its factors; with contact 0.5 ms instead of 4 ms) while
-        they contract the step at least tenfold; else linearise again. A chord step that
-        does not decrease the residual is retried as a Newton step from the same point.
-        Chord steps count as iterations. Under `jax.vmap` both branches run (a batched
-        `lax.cond` is a select): `solve_batch` turns it off when it vectorises.
+        Jacobian and evaluate only the residual (a fraction of the cost of a Jacobian
+        pass and its factors) while they contract the step at least tenfold; else
+        linearise again. A chord step that does not decrease the residual is retried as
+        a Newton step from the same point. Chord steps count as iterations. Under
+        `jax.vmap` both branches run (a batched `lax.cond` is a select): `solve_batch`
+        turns it off when it vectorises.
     reuse_jacobian_below: the largest change of any scaled unknown in a Newton step
         after which the next iteration reuses its factors. None (default): 1.0 without
         contact, 0.1 with objects or a support, whose penalty laws make the Jacobian
-        change faster. (Planar ref-A L1 from the undeformed shape: 2 linearisations and 4
-        chord steps instead of 3 and 1, about 10 % faster; with contact 1.0 cost a
-        Finger-1 grasp 2 more solves.)
+        change faster.
     """
 
     rtol: float = eqx.field(static=True, default=1e-10)
@@ -62,7 +104,9 @@ class SolverOptions(eqx.Module):
     min_tangent_cosine: float = eqx.field(static=True, default=0.95)
     max_corrector_steps: int = eqx.field(static=True, default=8)
     max_rotation_step: float | None = eqx.field(static=True, default=0.2)
-    linear_solver: str = eqx.field(static=True, default="banded")
+    linear_solver: AbstractLinearSolver = eqx.field(
+        static=True, default=BandedLinearSolver(), converter=as_linear_solver
+    )
     reuse_jacobian: bool = eqx.field(static=True, default=True)
     reuse_jacobian_below: float | None = eqx.field(static=True, default=None)
 
@@ -94,11 +138,6 @@ class SolverOptions(eqx.Module):
         if not isinstance(self.reuse_jacobian, bool):
             raise ValueError(
                 f"SolverOptions.reuse_jacobian must be True or False, got {self.reuse_jacobian!r}"
-            )
-        if self.linear_solver not in LINEAR_SOLVERS:
-            raise ValueError(
-                f"SolverOptions.linear_solver must be one of {LINEAR_SOLVERS}, "
-                f"got {self.linear_solver!r}"
             )
         for name in ("max_newton_steps", "max_continuation_steps", "max_corrector_steps"):
             v = getattr(self, name)

@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from ._bases import ClampedBase
 from ._finger import Adaptor, Crossbeams, DistributedLoad, Finger, Material, PointLoad, Section
 
 REF_A_LOADS = ("none", "L1", "L2", "L3")
@@ -32,6 +33,6 @@ def ref_finger_a(load: str = "L1", *, shear_coefficient: float = 5.0 / 6.0) -> F
         front=Section(1.5, 20.0),
         back=Section(1.5, 20.0),
         crossbeams=Crossbeams(z, z * lb / 120.0, np.full(n, 1.0), np.full(n, 20.0)),
-        adaptor=Adaptor("clamped", "clamped"),
+        adaptor=Adaptor(ClampedBase(), ClampedBase()),
         loads=loads[load],
     )

@@ -18,67 +18,17 @@ the end (no integration needed): 4 of 6 directions planar, 9 of 18 in 3-D.
 
 import functools
 import math
-import numbers
 from typing import ClassVar
 
-import diffrax as dfx
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
 from ._contact import ContactSpec, contact_load
+from ._integrator import integrate
 from ._objects import rsqrt
 from ._rotation import exp_so3, frame_mismatch, hat, planar_frame, vee
-
-
-class Integrator(eqx.Module):
-    """Fixed-step integration of each segment.
-
-    solver: a diffrax explicit Runge-Kutta solver (default Tsit5).
-    steps: steps per segment (fixes shapes; changing it recompiles).
-    backend: "tableau" (default) takes the solver's Butcher tableau and steps it in a
-        lean `lax.scan`, which compiles and runs several times faster for these tiny
-        states; "step" calls the solver's own `step` in a scan; "diffeqsolve" calls
-        `diffrax.diffeqsolve` with constant steps. The first two give the same answer;
-        diffeqsolve cannot re-project the state after each step (`after_step`: the
-        planar (cos, sin) pair, the 3-D frame), so its answer differs by the integration
-        error.
-    """
-
-    solver: dfx.AbstractSolver = dfx.Tsit5(scan_kind="lax")
-    steps: int = eqx.field(static=True, default=10)
-    backend: str = eqx.field(static=True, default="tableau")
-
-    def __check_init__(self):
-        if not isinstance(self.steps, numbers.Integral) or self.steps < 1:
-            raise ValueError(f"Integrator.steps must be a positive integer, got {self.steps!r}")
-        if self.backend not in BACKENDS:
-            raise ValueError(f"Integrator.backend must be one of {BACKENDS}, got {self.backend!r}")
-        if self.backend == "tableau" and getattr(self.solver, "tableau", None) is None:
-            raise ValueError(
-                f"Integrator.solver {type(self.solver).__name__} has no Butcher tableau; use an "
-                "explicit Runge-Kutta solver (Tsit5, Dopri5, Bosh3, Heun, ...) or "
-                "backend='step'"
-            )
-
-
-BACKENDS = ("tableau", "step", "diffeqsolve")
-
-
-def _rk_step(tableau, rhs, t, y, h):
-    """One explicit Runge-Kutta step of dy/dt = rhs(t, y) from a diffrax Butcher tableau."""
-    b = np.asarray(tableau.b_sol)
-    c = np.asarray(tableau.c)
-    n_stages = int(np.max(np.nonzero(b)[0])) + 1  # stages past the last weight are unused
-    ks = [rhs(t, y)]
-    for i in range(1, n_stages):
-        a = np.asarray(tableau.a_lower[i - 1])
-        yi = y + h * sum(float(aj) * k for aj, k in zip(a, ks) if aj != 0.0)
-        ks.append(rhs(t + float(c[i - 1]) * h, yi))
-    return y + h * sum(float(bi) * k for bi, k in zip(b, ks) if bi != 0.0)
-
 
 # Sample points (in the flexible part of a segment, tau in [0, 1]) of a varying section.
 TAPER_NODES = np.array([0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0])
@@ -527,71 +477,19 @@ def _stiffness_at(model, flat, tau):
 # --------------------------------------------------------------------------------------
 
 
-def _integrate(model, integrator: Integrator, y0, q, save_all: bool):
-    """Integrate one segment: closed-form rigid part, then fixed-step RK in tau in [0, 1]."""
-    y = model.rigid_transport(y0, q)
-    flex = q[0] - q[1]
-    term = dfx.ODETerm(lambda t, yy, args: flex * model.rhs(t, yy, args))
-    n = integrator.steps
-    h = 1.0 / n
-    if integrator.backend == "diffeqsolve":
-        ts = jnp.linspace(0.0, 1.0, n + 1)
-        saveat = dfx.SaveAt(ts=ts) if save_all else dfx.SaveAt(t1=True)
-        sol = dfx.diffeqsolve(
-            term,
-            integrator.solver,
-            0.0,
-            1.0,
-            h,
-            y,
-            args=q,
-            saveat=saveat,
-            stepsize_controller=dfx.ConstantStepSize(),
-            max_steps=n,
-            adjoint=dfx.ForwardMode(),
-            throw=False,
-        )
-        return sol.ys if save_all else sol.ys[-1]
-    solver = integrator.solver
-    if integrator.backend == "tableau":
-        f = lambda t, yy: flex * model.rhs(t, yy, q)
-
-        def rk(yy, i):
-            y1 = model.after_step(yy, _rk_step(solver.tableau, f, i * h, yy, h))
-            return y1, (y1 if save_all else None)
-
-        y_end, ys = lax.scan(rk, y, jnp.arange(n, dtype=q.dtype))
-        if save_all:
-            return jnp.concatenate([y[None], ys], axis=0)
-        return y_end
-    state = solver.init(term, 0.0, h, y, q)
-
-    def body(carry, i):
-        yy, st = carry
-        t0 = i * h
-        y1, _, _, st, _ = solver.step(term, t0, t0 + h, yy, q, st, made_jump=False)
-        y1 = model.after_step(yy, y1)
-        return (y1, st), (y1 if save_all else None)
-
-    (y_end, _), ys = lax.scan(body, (y, state), jnp.arange(n, dtype=q.dtype))
-    if save_all:
-        return jnp.concatenate([y[None], ys], axis=0)
-    return y_end
-
-
 def segment_trajectories(model, integrator, Y0, Q):
     """States at the n+1 step points of every segment: (S, steps + 1, n_full).
 
     The first point is the state after the rigid part (the clamp exit), which equals the
     start for a segment without a rigid part.
     """
-    return jax.vmap(lambda y, q: _integrate(model, integrator, y, q, True))(Y0, Q)
+    return jax.vmap(lambda y, q: integrate(model, integrator, y, q, True))(Y0, Q)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
 def segment_flow(model, integrator, Y0, Q):
     """End states of all segments: (S, n_full)."""
-    return jax.vmap(lambda y, q: _integrate(model, integrator, y, q, False))(Y0, Q)
+    return jax.vmap(lambda y, q: integrate(model, integrator, y, q, False))(Y0, Q)
 
 
 def flow_jacobians(
@@ -631,7 +529,7 @@ def flow_jacobians(
             b0, full = q[integrated], lambda b: q.at[integrated].set(b)
 
         def twice(d, b):
-            o = _integrate(model, integrator, y + E @ d, full(b), save_all)
+            o = integrate(model, integrator, y + E @ d, full(b), save_all)
             return o, o
 
         d0 = jnp.zeros(E.shape[1], y.dtype)

@@ -22,9 +22,9 @@ from ._finger import (
 )
 from ._geometry import arc_point, geometry
 from ._implicit import attach_implicit_gradient
+from ._integrator import Integrator
 from ._newton import WarmStart, linear_solver_of, on_branch, solve_root
-from ._options import MODES, SolverOptions
-from ._rod import Integrator
+from ._options import MODES, BandedLinearSolver, SolverOptions
 from ._rotation import log_so3, planar_frame
 from ._solution import (
     RESULTS,
@@ -108,7 +108,7 @@ def direct_core(
     code = RESULTS.where(ok, RESULTS.successful, RESULTS.nonlinear_divergence)
     code = RESULTS.where(direct.ok & ~ok, RESULTS.branch_changed, code)
     code = RESULTS.where(direct.outside, RESULTS.contact_outside_near_segments, code)
-    keep = keep_jacobian and options.linear_solver == "banded"
+    keep = keep_jacobian and isinstance(options.linear_solver, BandedLinearSolver)
     jacobian = lax.stop_gradient(direct.factors) if keep else None
     sol = _outputs(problem, y, one, code, direct.k, traj, jacobian)
     return sol, ok, direct.sign
@@ -302,7 +302,7 @@ def warm_start(topo, options: SolverOptions, y0, init: Solution | None, concrete
     """The core's `init` for a start at y0 (None: undeformed): with the banded solver a
     `WarmStart` carrying init's Jacobian factors when it has them (eagerly, zero factors
     unused when it has none, so that both share one compiled program)."""
-    if y0 is None or options.linear_solver != "banded":
+    if y0 is None or not isinstance(options.linear_solver, BandedLinearSolver):
         return y0
     factors = init.jacobian
     if factors is not None and factors.lu.shape != _banded.lu_shape(topo.band):

@@ -121,10 +121,7 @@ class _Nodes:
         for b in (0, 1):
             kind = topo.base_kinds[b]
             node = self.of[topo.first[b]]
-            if kind == "clamped":
-                fixed[node] = True
-            elif kind == "pinned":
-                fixed[node, :2] = True
+            fixed[node] |= np.asarray(kind.fixed)
         # A segment held rigidly over its whole length (inside a clamp, which starts at a
         # clamped base) carries its start's fixing to its end.
         rigid_whole = [i for i in np.flatnonzero(~flexible) if float(rigid[i]) > tiny]

@@ -16,13 +16,16 @@ import sys
 
 import numpy as np
 
-from . import DistributedLoad, Finger, PointLoad
+from . import ClampedBase, DistributedLoad, Finger, FreeBase, PinnedBase, PointLoad
 
 FRONT_COLOR = "tab:blue"
 BACK_COLOR = "tab:red"
 CROSSBEAM_COLOR = "tab:green"
 UNDEFORMED_COLOR = "0.72"
 LOAD_COLOR = "black"
+
+# The adaptor's base kinds as markers: a square holds, a triangle pins, a circle is free.
+BASE_MARKERS = {ClampedBase: "s", PinnedBase: "^", FreeBase: "o"}
 
 
 def _pyplot():
@@ -122,7 +125,7 @@ def plot_finger(
         (finger.back_base, finger.adaptor.back_base),
     ):
         x, z = np.asarray(base, dtype=np.float64)
-        marker = {"clamped": "s", "pinned": "^", "free": "o"}[kind]
+        marker = BASE_MARKERS[type(kind)]
         ax.plot([x], [z], marker=marker, color="black", ms=8, mfc="0.3", zorder=4)
     if loads and finger.loads:
         _draw_loads(ax, sol, finger)

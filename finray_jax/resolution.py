@@ -26,8 +26,9 @@ import numpy as np
 
 from ._finger import Finger
 from ._geometry import geometry
-from ._grasp import GraspSolution, resolve_near
-from ._rod import Integrator
+from ._grasp import resolve_near
+from ._grasp_solution import GraspSolution
+from ._integrator import Integrator
 from ._solution import Solution
 from ._solve import SolverOptions, prepare, solve_finger
 from .io import to_plain  # (NaN -> None, tuples -> lists)

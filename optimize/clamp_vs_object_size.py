@@ -89,7 +89,7 @@ def main(argv=None) -> int:
         scan = np.linspace(lo, hi, 12)
         max_iter = 12
     finger = cm.load_finger1()
-    adaptor = fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=ls)
+    adaptor = fr.Adaptor(front_base=fr.PinnedBase(), back_clamp_length=20.0, support_length=ls)
 
     def base_for(d, k=None):
         b = studies.with_adaptor(studies.with_object(finger, d), adaptor)

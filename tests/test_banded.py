@@ -11,10 +11,10 @@ import pytest
 
 import finray_jax as fr
 import finray_jax.io
-from finray_jax import _banded, _rod, _solve
+from finray_jax import _banded, _integrator, _rod, _solve
 from finray_jax._rotation import exp_so3
 
-MODIFIED = fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+MODIFIED = fr.Adaptor(front_base=fr.PinnedBase(), back_clamp_length=20.0, support_length=60.0)
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +28,7 @@ def grasped():
 def _cases():
     ref = fr.ref_finger_a("L1")
     pinned = eqx.tree_at(
-        lambda f: f.adaptor, ref, fr.Adaptor(front_base="pinned", back_clamp_length=20.0)
+        lambda f: f.adaptor, ref, fr.Adaptor(front_base=fr.PinnedBase(), back_clamp_length=20.0)
     )
     out_of_plane = ref.with_loads(fr.PointLoad(beam=0, s=60.0, force=(0.05, 0.02, 0.0)))
     return {
@@ -83,7 +83,7 @@ def check_banded_step(finger, topo, at=None):
     def everything(problem, y):
         fn = lambda y: _solve.natural_residual(y, (problem, lam))
         r, A = _banded.linearize(plan, fn, y)
-        dy, r2, sign = _solve.newton_step(problem, lam, y, "banded")
+        dy, r2, sign = _solve.newton_step(problem, lam, y, fr.BandedLinearSolver())
         Jc = _banded.dense(plan, _banded.compressed(plan, fn, y)[1])
         return jax.jacfwd(fn)(y), r, A, dy, r2, sign, Jc
 
@@ -192,8 +192,12 @@ def test_factor_picks_lapack_on_cpu(monkeypatch):
 @pytest.mark.parametrize("mode", ["planar", pytest.param("spatial", marks=pytest.mark.slow)])
 def test_both_linear_solvers_give_the_same_equilibrium(mode):
     finger = fr.ref_finger_a("L1")
-    a = fr.solve_finger(finger, mode=mode, options=fr.SolverOptions(linear_solver="dense"))
-    b = fr.solve_finger(finger, mode=mode, options=fr.SolverOptions(linear_solver="banded"))
+    a = fr.solve_finger(
+        finger, mode=mode, options=fr.SolverOptions(linear_solver=fr.DenseLinearSolver())
+    )
+    b = fr.solve_finger(
+        finger, mode=mode, options=fr.SolverOptions(linear_solver=fr.BandedLinearSolver())
+    )
     assert a.converged and b.converged
     np.testing.assert_allclose(b.tip.displacement, a.tip.displacement, rtol=0, atol=1e-10)
     np.testing.assert_allclose(b.reactions_back.force, a.reactions_back.force, rtol=0, atol=1e-10)
@@ -210,7 +214,7 @@ def _flow_jvps(model, Y0u, theta, Q, dYu, dQ):
     integ = fr.Integrator()
     full = lambda yu: jax.vmap(model.full_from_unknown)(yu, theta)
     custom = lambda yu, q: _rod.segment_flow(model, integ, full(yu), q)
-    plain = lambda yu, q: jax.vmap(lambda y, qq: _rod._integrate(model, integ, y, qq, False))(
+    plain = lambda yu, q: jax.vmap(lambda y, qq: _integrator.integrate(model, integ, y, qq, False))(
         full(yu), q
     )
     both = jax.jit(lambda *a: (jax.jvp(custom, a[:2], a[2:])[1], jax.jvp(plain, a[:2], a[2:])[1]))
@@ -301,7 +305,7 @@ def test_optimistix_adjoint_with_banded_lu_gives_the_same_gradient():
         finger = eqx.tree_at(lambda f: f.front.thickness, base, t)
         problem = _solve.make_problem(topo, fr.Integrator(), finger)
         if how == "project":
-            return attach_implicit_gradient(problem, one, y, "banded")[0]
+            return attach_implicit_gradient(problem, one, y, fr.BandedLinearSolver())[0]
         inputs = (problem, one, jax.lax.stop_gradient(y))
         solver = BandedLU(topo.band)
         return optx.internal.implicit_jvp(_root_primal, _root_rewrite, inputs, frozenset(), solver)[

@@ -12,9 +12,11 @@ from helpers import contact_wrench, global_balance, without_jacobian
 
 import finray_jax as fr
 import finray_jax.io
+from finray_jax._closing import closing_step_cap as _closing_step_cap
 from finray_jax._contact import penalty
-from finray_jax._grasp import Stepper, _closing_step_cap, with_stiffness
+from finray_jax._grasp_inputs import with_stiffness
 from finray_jax._solve import direct_core
+from finray_jax._stepper import Stepper
 
 # ---------------------------------------------------------------------------------------
 # Objects and the penalty law
@@ -199,7 +201,7 @@ def _cantilever_finger(objects, stiffness, loads=()):
         front=fr.Section(T, DEPTH),
         back=fr.Section(T, DEPTH),
         crossbeams=fr.Crossbeams([], [], [], []),
-        adaptor=fr.Adaptor(back_base="free"),
+        adaptor=fr.Adaptor(back_base=fr.FreeBase()),
         loads=tuple(loads),
         objects=tuple(objects),
         contact=fr.Contact(stiffness=stiffness, max_penetration=0.002),
@@ -354,7 +356,7 @@ def finger1():
     return eqx.tree_at(lambda f: f.objects, finger.with_loads(), (fr.Circle((-11.0, 60.0), 9.0),))
 
 
-MODIFIED = fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+MODIFIED = fr.Adaptor(front_base=fr.PinnedBase(), back_clamp_length=20.0, support_length=60.0)
 
 
 def test_a_flat_face_pressed_on_the_front_beam(finger1):

@@ -265,9 +265,9 @@ REFUSED = {
 
 
 CURVED_BACK = _with(REF, back_curvature=0.003)
-PINNED_FRONT = _with(REF, adaptor=fr.Adaptor(front_base="pinned"))
+PINNED_FRONT = _with(REF, adaptor=fr.Adaptor(front_base=fr.PinnedBase()))
 SUPPORTED = _with(
-    REF, adaptor=fr.Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+    REF, adaptor=fr.Adaptor(front_base=fr.PinnedBase(), back_clamp_length=20.0, support_length=60.0)
 )
 
 

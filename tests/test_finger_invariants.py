@@ -376,7 +376,7 @@ def test_jacobian_factors_are_kept_only_where_asked(sol_l1):
     assert fr.solve_finger(finger, mode="planar", keep_jacobian=False).jacobian is None
     with pytest.raises(ValueError, match="keep_jacobian must be True or False, got 'no'"):
         fr.solve_finger(finger, mode="planar", keep_jacobian="no")
-    dense = fr.SolverOptions(linear_solver="dense")
+    dense = fr.SolverOptions(linear_solver=fr.DenseLinearSolver())
     assert fr.solve_finger(finger, mode="planar", options=dense, init=sol_l1).jacobian is None
     # traced (jit): the full core starts from the factors and keeps none
     topo = fr.topology_of(finger, "planar")
@@ -484,7 +484,7 @@ def _load_point_dx(sol):
 
 
 def test_pinned_front_base(sol_l1):
-    finger = _replace(_ref("L1"), adaptor=fr.Adaptor("pinned", "clamped"))
+    finger = _replace(_ref("L1"), adaptor=fr.Adaptor(fr.PinnedBase(), fr.ClampedBase()))
     sol = _solve_ok(finger, mode="planar")
     # A hinge carries no moment: the hinge row holds m_y = 0 to the Newton tolerance
     # (scaled by EI/L = 0.56 N mm), i.e. ~1e-15 N mm.
@@ -499,7 +499,7 @@ def test_pinned_front_base(sol_l1):
 
 
 def test_free_front_base(sol_l1):
-    finger = _replace(_ref("L1"), adaptor=fr.Adaptor("free", "clamped"))
+    finger = _replace(_ref("L1"), adaptor=fr.Adaptor(fr.FreeBase(), fr.ClampedBase()))
     sol = _solve_ok(finger, mode="planar")
     for x in (sol.reactions_front.force, sol.reactions_front.moment):
         assert np.max(np.abs(np.asarray(x))) < 1e-10
@@ -523,7 +523,8 @@ def test_back_clamp_length_stiffens(sol_l1):
 def test_zero_clamp_length_is_the_original(sol_l1):
     base = _ref("L1")
     same = _solve_ok(
-        _replace(base, adaptor=fr.Adaptor("clamped", "clamped", 0.0, 0.0)), mode="planar"
+        _replace(base, adaptor=fr.Adaptor(fr.ClampedBase(), fr.ClampedBase(), 0.0, 0.0)),
+        mode="planar",
     )
     for (name, a), (_, b) in zip(_beams(sol_l1), _beams(same)):
         np.testing.assert_allclose(
@@ -639,7 +640,7 @@ def test_bordered_linearisation_gives_the_path_tangent(case, mode):
     y = _solve.undeformed_unknowns(topo, finger)
     y = _newton.solve_root(problem, y, half, fr.SolverOptions()).y  # an equilibrium
     y = y + 1e-3 * np.cos(np.arange(y.size))  # and a point off it
-    solver = _newton.linear_solver_of(problem, "banded")
+    solver = _newton.linear_solver_of(problem, fr.BandedLinearSolver())
     r, factors, sign, b = _steps.linearise_arc(problem, half, y, solver, True)
     fn = lambda a, lam: _solve.natural_residual(a, (problem, lam))
     J = jax.jacfwd(fn)(y, half)
@@ -718,7 +719,7 @@ def test_curvature_rules():
     clamped = _replace(
         base,
         back_curvature=0.001,
-        adaptor=fr.Adaptor("clamped", "clamped", back_clamp_length=10.0),
+        adaptor=fr.Adaptor(fr.ClampedBase(), fr.ClampedBase(), back_clamp_length=10.0),
     )
     with pytest.raises(fr.FingerError, match="back_clamp_length = 10.0"):
         fr.validate_finger(clamped)

@@ -11,8 +11,9 @@ from scipy import optimize
 import finray_jax as fr
 import finray_jax.io
 from finray_jax import _fold, design
-from finray_jax._grasp import Stepper, with_stiffness
-from finray_jax._rod import Integrator, PlanarRod, flow_jacobians
+from finray_jax._grasp_inputs import with_stiffness
+from finray_jax._integrator import Integrator
+from finray_jax._rod import PlanarRod, flow_jacobians
 from finray_jax._solution import RESULTS, status_name
 from finray_jax._solve import SolverOptions, direct_core
 from finray_jax._stability import (
@@ -20,6 +21,7 @@ from finray_jax._stability import (
     condensed_stability,
     stability_of,
 )
+from finray_jax._stepper import Stepper
 
 # --------------------------------------------------------------------------------------
 # A clamped column under an axial dead load (closed forms)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from test_cli import run
 
+import finray_jax as fr
 from finray_jax import cli, studies
 from finray_jax import io as fio
 
@@ -174,8 +175,9 @@ def test_an_actuator_force_beyond_the_fingers_peak_returns_the_peak():
 def test_the_open_finger_is_clear_of_the_objects_before_the_estimated_contact():
     """_closing_to_contact: a closing that leaves a cylinder 2 mm in front of the straight
     front beam clear of it, short of that 2 mm by at most the samples' spacing."""
+    from finray_jax._closing import _closing_to_contact
     from finray_jax._geometry import main_beam_samples
-    from finray_jax._grasp import _closing_to_contact, with_objects_moved
+    from finray_jax._grasp_inputs import with_objects_moved
 
     design = studies.with_object(_finger(), 18.0, clearance=2.0)
     gap = _closing_to_contact(design)
@@ -187,7 +189,9 @@ def test_the_open_finger_is_clear_of_the_objects_before_the_estimated_contact():
 
 
 def _modified(diameter, clamp_length):
-    ad = studies.Adaptor(front_base="pinned", back_clamp_length=clamp_length, support_length=60.0)
+    ad = studies.Adaptor(
+        front_base=fr.PinnedBase(), back_clamp_length=clamp_length, support_length=60.0
+    )
     return studies.with_adaptor(studies.with_object(_finger(), diameter), ad)
 
 

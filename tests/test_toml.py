@@ -178,7 +178,7 @@ def test_top_level_key_after_a_table_is_named_as_such():
         assert f"TOML reads it as {where} here)" in str(info.value)
     # before the first table it is read, and a misspelt key still gets a suggestion
     finger, _ = fio.loads_finger('torsion = "rectangle"\n' + text, source="ok.toml")
-    assert finger.torsion == "rectangle"
+    assert finger.torsion == fr.SaintVenantTorsion()
     d = doc()
     d["adaptor"]["torsoin"] = "paper"
     msg = assert_error(d, "adaptor.torsoin", "unknown key in [adaptor]")
@@ -501,7 +501,7 @@ def test_solver_settings():
     assert s.integrator.steps == 20
     assert s.options.rtol == 1e-9 and s.options.atol == fr.SolverOptions().atol
     assert s.options.max_newton_steps == 30 and s.options.max_continuation_steps == 50
-    assert s.options.linear_solver == "dense"
+    assert s.options.linear_solver == fr.DenseLinearSolver()
     assert (s.name, s.description) == ("test", "a test finger")
     assert s.solve_kwargs()["mode"] == "spatial"
 
@@ -650,13 +650,13 @@ def test_round_trip_ref_a(case):
 
 def test_round_trip_everything():
     finger = round_trip_finger(
-        adaptor=fr.Adaptor("clamped", "pinned", front_clamp_length=4.0 / 3.0),
+        adaptor=fr.Adaptor(fr.ClampedBase(), fr.PinnedBase(), front_clamp_length=4.0 / 3.0),
         loads=(
             fr.PointLoad(0, 50.0 + 1e-9, (0.1, 0.2, -0.3), (1.0, 2.0, 3.0)),
             fr.PointLoad(3, 5.0, (0.0, 0.0, 1.0 / 3.0)),
             fr.DistributedLoad(1, (20.0, 60.0), (-0.5, 0.0, 0.25)),
         ),
-        torsion="rectangle",
+        torsion=fr.SaintVenantTorsion(),
     )
     settings = fio.SolveSettings(
         mode="spatial",

@@ -182,7 +182,32 @@ def test_coincident_bases(finger):
 
 
 def test_unknown_torsion(finger):
-    _raises(dataclasses.replace(finger, torsion="circle"), "torsion", "'circle'")
+    with pytest.raises(fr.FingerError, match="torsion must be one of .*, got 'circle'"):
+        dataclasses.replace(finger, torsion="circle")
+
+
+@pytest.mark.parametrize("field", ["front_base", "back_base"])
+def test_unknown_base(field):
+    with pytest.raises(fr.FingerError, match=f"adaptor.{field} must be one of .*, got 'welded'"):
+        fr.Adaptor(**{field: "welded"})
+
+
+def test_a_choice_by_name_is_deprecated_and_means_its_object():
+    with pytest.deprecated_call(match="PinnedBase"):
+        adaptor = fr.Adaptor(front_base="pinned")
+    assert adaptor.front_base == fr.PinnedBase()
+    with pytest.deprecated_call(match="SaintVenantTorsion"):
+        assert (
+            fr.solve_cantilever(
+                10.0, fr.Material(2.0, 0.4), fr.Section(1.0, 5.0), torsion="rectangle"
+            ).result
+            is not None
+        )
+    with pytest.deprecated_call(match="DenseLinearSolver"):
+        options = fr.SolverOptions(linear_solver="dense")
+    assert options.linear_solver == fr.DenseLinearSolver()
+    with pytest.deprecated_call(match="StepBackend"):
+        assert fr.Integrator(backend="step").backend == fr.StepBackend()
 
 
 @pytest.mark.parametrize("s", [0.0, -5.0, 120.0, 130.0])
@@ -314,15 +339,11 @@ def test_crossbeam_arrays_with_wrong_shapes(finger, field, value):
 # --- adaptor -------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("field", ["front_base", "back_base"])
-def test_unknown_base_kind(finger, field):
-    _raises(_adaptor(finger, **{field: "welded"}), f"adaptor.{field}", "'welded'")
-
-
 @pytest.mark.parametrize("beam", ["front", "back"])
 @pytest.mark.parametrize("kind", ["pinned", "free"])
 def test_clamp_length_needs_clamped_base(finger, beam, kind):
-    bad = _adaptor(finger, **{f"{beam}_base": kind, f"{beam}_clamp_length": 12.5})
+    base = {"pinned": fr.PinnedBase(), "free": fr.FreeBase()}[kind]
+    bad = _adaptor(finger, **{f"{beam}_base": base, f"{beam}_clamp_length": 12.5})
     _raises(bad, f"adaptor.{beam}_clamp_length", "12.5", f"'{kind}'")
 
 

@@ -35,7 +35,7 @@ def _wrap_finger(P, radius, near=8):
         front=fr.Section(T, DEPTH),
         back=fr.Section(T, DEPTH),
         crossbeams=fr.Crossbeams([], [], [], []),
-        adaptor=fr.Adaptor(back_base="free"),
+        adaptor=fr.Adaptor(back_base=fr.FreeBase()),
         loads=(fr.PointLoad(0, L, (P, 0.0, 0.0)),),
         objects=(fr.Circle((radius + T / 2 + CLEAR, 0.0), radius),),
         contact=fr.Contact(near_segments=near),
