@@ -14,14 +14,21 @@ import jax
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._bases import AbstractBase, ClampedBase, as_base
 from ._contact import Contact
 from ._errors import FingerError, FingerWarning
-from ._geometry import geometry, main_beam_arc, main_beam_samples, xz
+from ._geometry import (
+    AbstractTorsion,
+    PaperTorsion,
+    as_torsion,
+    geometry,
+    main_beam_arc,
+    main_beam_samples,
+    xz,
+)
 from ._objects import AbstractObject
 from ._types import as_float
 
-BASE_KINDS = ("clamped", "pinned", "free")
-TORSION_KINDS = ("paper", "rectangle")
 FRONT, BACK = 0, 1
 
 
@@ -74,7 +81,7 @@ class Crossbeams(eqx.Module):
 class Adaptor(eqx.Module):
     """How the mounting adaptor holds the two main beams.
 
-    front_base, back_base: "clamped" | "pinned" | "free" (static).
+    front_base, back_base: ClampedBase(), PinnedBase() or FreeBase() (static).
     front_clamp_length, back_clamp_length: length from the base held rigidly by the
         adaptor (mm, continuous design values; needs a clamped base when positive).
         Crossbeams landing inside a clamped length attach to the rigid adaptor.
@@ -84,8 +91,12 @@ class Adaptor(eqx.Module):
         there is a support is static; its length is a design value.
     """
 
-    front_base: str = eqx.field(static=True, default="clamped")
-    back_base: str = eqx.field(static=True, default="clamped")
+    front_base: AbstractBase = eqx.field(
+        static=True, default=ClampedBase(), converter=lambda v: as_base(v, "adaptor.front_base")
+    )
+    back_base: AbstractBase = eqx.field(
+        static=True, default=ClampedBase(), converter=lambda v: as_base(v, "adaptor.back_base")
+    )
     front_clamp_length: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
     back_clamp_length: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
     support_length: Float[Array, ""] | None = eqx.field(converter=_optional_float, default=None)
@@ -127,7 +138,8 @@ class Finger(eqx.Module):
     make a main beam an undeformed circular arc from base to tip with that precurvature;
     positive turns its tangent from +z toward +x. Arc lengths (attachments, loads) are
     measured along the arc.
-    torsion: "paper" uses G (Ixx + Iyy); "rectangle" the Saint-Venant constant.
+    torsion: how GJ is taken: PaperTorsion() (G (Ixx + Iyy), default) or
+        SaintVenantTorsion().
     objects: rigid objects (Circle, Ellipse, ...) the beams may touch; contact: how.
     """
 
@@ -142,7 +154,7 @@ class Finger(eqx.Module):
     loads: tuple[AbstractLoad, ...] = ()
     front_curvature: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
     back_curvature: Float[Array, ""] = eqx.field(converter=as_float, default=0.0)
-    torsion: str = eqx.field(static=True, default="paper")
+    torsion: AbstractTorsion = eqx.field(static=True, default=PaperTorsion(), converter=as_torsion)
     objects: tuple[AbstractObject, ...] = ()
     contact: Contact = Contact()
 
@@ -283,8 +295,6 @@ def validate_finger(finger: Finger) -> None:
         raise FingerError(f"back beam has zero length: back_base equals tip {finger.tip}")
     if np.allclose(_num(finger.front_base), _num(finger.back_base)):
         raise FingerError("front_base and back_base coincide")
-    if finger.torsion not in TORSION_KINDS:
-        raise FingerError(f"torsion must be one of {TORSION_KINDS}, got {finger.torsion!r}")
     front_line, back_line = _centrelines(finger, geo)
     _check_main_beams_apart(finger, front_line, back_line)
 
@@ -337,9 +347,6 @@ def validate_finger(finger: Finger) -> None:
                 )
 
     ad = finger.adaptor
-    for name, kind in (("adaptor.front_base", ad.front_base), ("adaptor.back_base", ad.back_base)):
-        if kind not in BASE_KINDS:
-            raise FingerError(f"{name} must be one of {BASE_KINDS}, got {kind!r}")
     for name, kind, length, total in (
         ("front", ad.front_base, ad.front_clamp_length, lf),
         ("back", ad.back_base, ad.back_clamp_length, lb),
@@ -353,10 +360,10 @@ def validate_finger(finger: Finger) -> None:
                 f"adaptor.{name}_clamp_length = {lc} with {name}_curvature = {curvature}: "
                 "a clamp on a curved beam is not supported yet"
             )
-        if lc > 0 and kind != "clamped":
+        if lc > 0 and not kind.holds_clamp:
             raise FingerError(
                 f"adaptor.{name}_clamp_length = {lc} needs adaptor.{name}_base = 'clamped', "
-                f"got {kind!r}"
+                f"got {kind.name!r}"
             )
 
     sl = ad.support_length

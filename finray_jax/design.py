@@ -331,7 +331,7 @@ def design_valid(finger: Finger, topology) -> jax.Array:
     ):
         ok = ok & (clamp >= 0) & (clamp < length)
         ok = ok & ((clamp == 0) | (kappa == 0))  # (no clamp on a curved beam yet)
-        if kind != "clamped":
+        if not kind.holds_clamp:
             ok = ok & (clamp == 0)
     if ad.support_length is not None:
         ls = ad.support_length
