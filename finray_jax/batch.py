@@ -17,6 +17,9 @@ not make a whole vmapped chunk (which runs in lock step) continue.
 On CPU the designs of a chunk are by default mapped one after another inside the
 compiled program instead of vmapped: faster there, and safe from a deadlock of jaxlib's
 batched CPU LAPACK kernels (see `_vectorize`).
+
+A batch's data (values in, `BatchResult` out) is in `_batch_data`; batches of grasps
+(`iter_grasps`) are in `_grasp_batch`.
 """
 
 from __future__ import annotations
@@ -33,25 +36,15 @@ from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from . import _solve
-from ._assembly import build_topology, event_s
-from ._finger import Finger, FingerError, beam_name, validate_finger
-from ._grasp import grasp, release_force
-from ._rod import Integrator
+from ._batch_data import INVALID, BatchResult, Diagnosis, check_values, chunk_result, pad
+from ._batch_data import one_line as one_line
+from ._batch_data import status_names as status_names
+from ._finger import Finger
+from ._grasp_batch import iter_grasps as iter_grasps
+from ._integrator import Integrator
 from ._solution import RESULTS, Solution
 from ._solve import SolverOptions, solve_finger, topology_of
-from .design import (
-    GRASP_OUTPUTS,
-    OUTPUTS,
-    RELEASE_OUTPUTS,
-    DesignError,
-    check_design_names,
-    check_output_names,
-    design_valid,
-    design_valid_jit,
-    evaluate_outputs,
-    get_design,
-    set_design,
-)
+from .design import check_output_names, design_valid, evaluate_outputs, get_design, set_design
 
 __all__ = [
     "BatchResult",
@@ -63,125 +56,7 @@ __all__ = [
     "status_names",
 ]
 
-#: Result code of a design that was not solved (invalid, or outside the base topology).
-INVALID = -1
 _AXIS = "design"
-
-
-def one_line(text) -> str:
-    """text on one line (its whitespace runs made single spaces), for a CSV cell or a log."""
-    return " ".join(str(text).split())
-
-
-def _event_name(kind: str, index: int) -> str:
-    return {
-        "cb": f"crossbeam {index}",
-        "point": f"loads[{index}]",
-        "dist_start": f"the start of loads[{index}]",
-        "dist_end": f"the end of loads[{index}]",
-    }.get(kind, "the support's end (adaptor.support_length)")
-
-
-_designed = eqx.filter_jit(set_design)  # (one compile per set of names, not per design)
-
-
-class Diagnosis:
-    """Why a design of a batch was not solved (status "invalid"), as one line: the finger
-    validation's message (`validate_finger`: the field and its value), else the change of
-    the base finger's topology (which event now comes before which, where). Called with
-    one design's values (name -> value); eager, on the host."""
-
-    def __init__(self, base: Finger, mode: str, topology=None):
-        self.base, self.mode, self._topology = base, mode, topology
-
-    @functools.cached_property
-    def base_events(self):
-        topo = self._topology
-        return (build_topology(self.base, self.mode) if topo is None else topo).events
-
-    def __call__(self, values: Mapping[str, object]) -> str:
-        vals = {k: np.asarray(v, dtype=np.float64) for k, v in values.items()}
-        try:
-            finger = jax.device_get(_designed(self.base, vals))
-            validate_finger(finger)
-            moved = self._topology_change(finger)
-        except FingerError as e:
-            return one_line(e)
-        except Exception as e:  # noqa: BLE001 - a reason, whatever went wrong
-            return one_line(f"invalid design ({type(e).__name__}: {e})")
-        if moved is not None:
-            return moved
-        return (
-            "invalid design: a value is out of range or it changes the base finger's topology "
-            "(the order of crossbeams, load points and the support's end along a beam)"
-        )
-
-    def _topology_change(self, finger: Finger) -> str | None:
-        events = build_topology(finger, self.mode).events
-        for beam, (old, new) in enumerate(zip(self.base_events, events)):
-            old = [e for e in old if e[0] != "sub"]
-            new = [e for e in new if e[0] != "sub"]
-            for a, c in zip(old, new):
-                if a != c:
-                    where = {0: "the front beam", 1: "the back beam"}.get(beam, beam_name(beam))
-                    sa, sc = (float(np.asarray(event_s(finger, beam, *e))) for e in (a, c))
-                    return (
-                        "changes the base finger's topology (the order of events along a "
-                        f"beam): on {where}, {_event_name(*c)} at s = {sc:.6g} now comes "
-                        f"before {_event_name(*a)} at s = {sa:.6g}"
-                    )
-        return None
-
-
-class BatchResult(eqx.Module):
-    """Per-design results of a batch (host numpy arrays, B designs).
-
-    inputs, outputs: name -> (B,) (or (B, C) for a whole crossbeam array) values. Outputs
-        are NaN for invalid and failed designs; beyond the limit load they are those of
-        the equilibrium at the fold (see the "load_factor" output).
-    result: RESULTS codes (int), INVALID (-1) for designs that were not solved.
-    iterations: Newton iterations; max_residual: largest scaled residual (NaN if invalid).
-    diagnosis: what `message` asks why a design is invalid (set by `solve_batch`).
-    """
-
-    inputs: dict[str, np.ndarray]
-    outputs: dict[str, np.ndarray]
-    result: np.ndarray
-    iterations: np.ndarray
-    max_residual: np.ndarray
-    diagnosis: Diagnosis | None = eqx.field(default=None, static=True)
-
-    @property
-    def size(self) -> int:
-        return int(self.result.shape[0])
-
-    @property
-    def status(self) -> np.ndarray:
-        """'converged' | 'beyond_limit_load' | 'failed' | 'invalid' per design."""
-        return status_names(self.result)
-
-    def message(self, i: int) -> str:
-        """What the result of design i means (and what to do)."""
-        code = int(self.result[i])
-        if code == INVALID:
-            if self.diagnosis is not None:
-                return self.diagnosis({k: v[i] for k, v in self.inputs.items()})
-            return (
-                "invalid design: a value is not finite or out of range (thickness, depth or E "
-                "not positive, attachment outside its beam), or it changes the base finger's "
-                "topology (order of attachments and load points along a beam)"
-            )
-        return RESULTS._index_to_message[code] or "converged"
-
-
-def status_names(result) -> np.ndarray:
-    """Status names of RESULTS codes (INVALID -> 'invalid')."""
-    code = np.asarray(result)
-    names = np.full(code.shape, "failed", dtype=object)
-    names[code == int(RESULTS.successful._value)] = "converged"
-    names[code == int(RESULTS.beyond_limit_load._value)] = "beyond_limit_load"
-    names[code == INVALID] = "invalid"
-    return names
 
 
 # --------------------------------------------------------------------------------------
@@ -297,28 +172,6 @@ def _init_deformation(init, topo):
     return jnp.asarray(init.deformation)
 
 
-def _check_values(base: Finger, values: Mapping) -> tuple[dict[str, np.ndarray], int]:
-    if not isinstance(values, Mapping) or not values:
-        raise DesignError("values must be a non-empty dict: design-value name -> (B,) array")
-    check_design_names(base, values)
-    shapes = {k: np.shape(v) for k, v in get_design(base, list(values)).items()}
-    arrays, size = {}, None
-    for name, v in values.items():
-        a = np.asarray(v, dtype=np.float64)
-        if a.ndim != 1 + len(shapes[name]) or a.shape[1:] != shapes[name]:
-            raise DesignError(
-                f"values[{name!r}] must have shape (B,) + {shapes[name]} (one row per design), "
-                f"got {a.shape}"
-            )
-        if size is not None and a.shape[0] != size:
-            raise DesignError(
-                f"values[{name!r}] has {a.shape[0]} designs, the others {size}: all value arrays "
-                "need the same length"
-            )
-        arrays[name], size = a, a.shape[0]
-    return arrays, size
-
-
 def _default_device():
     """The device jax puts new arrays and computations on (`jax_default_device`, a
     device or a platform name, else the first device)."""
@@ -352,20 +205,6 @@ def default_chunk_size(platform: str) -> int:
     return 256 if platform == "cpu" else 4096
 
 
-def _pad(arrays, rows: slice | np.ndarray, size: int, fill) -> dict[str, np.ndarray]:
-    out = {}
-    for name, v in arrays.items():
-        part = v[rows]
-        pad = np.broadcast_to(fill[name], (size - part.shape[0],) + v.shape[1:])
-        out[name] = np.concatenate([part, pad])
-    return out
-
-
-def _chunk_result(arrays, rows: slice, outs, code, its, res, diagnosis) -> BatchResult:
-    inputs = {k: v[rows] for k, v in arrays.items()}
-    return BatchResult(inputs, outs, code, its, res, diagnosis)
-
-
 def iter_batch(
     base_finger: Finger,
     values: Mapping[str, np.ndarray],
@@ -387,7 +226,7 @@ def iter_batch(
     See `solve_batch`. Every chunk is padded to the same size, so all chunks share one
     compiled program.
     """
-    arrays, size = _check_values(base_finger, values)
+    arrays, size = check_values(base_finger, values)
     outputs = tuple(outputs)
     check_output_names(outputs)
     mesh, target, platform = _placement(devices)
@@ -410,7 +249,7 @@ def iter_batch(
 
     def run(stage, opts, rows, n_rows):
         padded = -(-n_rows // n_dev) * n_dev
-        chunk = jax.device_put(_pad(arrays, rows, padded, fill), target)
+        chunk = jax.device_put(pad(arrays, rows, padded, fill), target)
         vec = _vectorize(stage, mesh, platform, vectorize)
         if vec:  # a vmapped lax.cond runs both branches: chord steps would save nothing
             opts = dataclasses.replace(opts, reuse_jacobian=False)
@@ -438,7 +277,7 @@ def iter_batch(
             for name in outs:
                 outs[name][sel] = o2[name][:k]
             code[sel], its[sel], res[sel] = c2[:k], its[sel] + i2[:k], r2[:k]
-        yield a, _chunk_result(arrays, slice(a, z), outs, code, its, res, diagnosis)
+        yield a, chunk_result(arrays, slice(a, z), outs, code, its, res, diagnosis)
 
 
 def solve_batch(
@@ -502,73 +341,3 @@ def solve_batch(
         max_residual=cat([p.max_residual for p in parts]),
         diagnosis=parts[0].diagnosis if parts else None,
     )
-
-
-def iter_grasps(
-    base_finger: Finger,
-    values: Mapping[str, np.ndarray],
-    outputs: Sequence[str] = ("contact.normal_force",),
-    *,
-    grasp_kwargs: Mapping,
-    release_kwargs: Mapping | None = None,
-    mode: str = "planar",
-    chunk_size: int = 16,
-    start: int = 0,
-) -> Iterator[tuple[int, BatchResult]]:
-    """Grasp designs start, start + 1, ... of a finger with objects, one after another,
-    and yield (first index, BatchResult) every `chunk_size` designs.
-
-    Each design is closed on its objects as `finray_jax.grasp(finger, **grasp_kwargs)`
-    does (a path of warm-started solves; `grasp_kwargs` as `GraspSettings.grasp_kwargs()`:
-    closing or actuator_force, direction, symmetric), on the base finger's segment table
-    (`grasp(topology=)`), so every design shares one compiled program. outputs: names of
-    `design.GRASP_OUTPUTS` (the contact), `design.RELEASE_OUTPUTS` (the holding force:
-    each converged grasp is then also pulled out, `release_force(g, **release_kwargs)`, on
-    the same segment table) or `design.OUTPUTS` (of the grasp's equilibrium).
-    A design that is invalid, leaves the base topology or moves its objects out of reach
-    is `invalid`; a grasp that does not converge is `failed` with the solver's result.
-    """
-    arrays, size = _check_values(base_finger, values)
-    outputs = tuple(outputs)
-    for name in outputs:
-        if name not in GRASP_OUTPUTS and name not in RELEASE_OUTPUTS and name not in OUTPUTS:
-            raise DesignError(
-                f"unknown output {name!r}; valid outputs: {', '.join(GRASP_OUTPUTS)}, "
-                f"{', '.join(RELEASE_OUTPUTS)}, {', '.join(OUTPUTS)}"
-            )
-    pulled = any(name in RELEASE_OUTPUTS for name in outputs)
-    release_kwargs = dict(release_kwargs or {})
-    if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
-        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
-    kwargs = dict(grasp_kwargs)
-    topo = topology_of(base_finger, mode)
-    diagnosis = Diagnosis(base_finger, topo.mode, topo)
-    for a in range(start, size, chunk_size):
-        z = min(a + chunk_size, size)
-        outs = {k: np.full(z - a, np.nan) for k in outputs}
-        code = np.full(z - a, INVALID, dtype=np.int64)
-        its = np.zeros(z - a, dtype=np.int64)
-        res = np.full(z - a, np.nan)
-        for i in range(a, z):
-            finger = set_design(base_finger, {k: v[i] for k, v in arrays.items()})
-            if not bool(design_valid_jit(finger, topo)):
-                continue
-            try:
-                g = grasp(finger, mode=mode, topology=topo, **kwargs)
-            except FingerError:  # (its objects out of reach, or behind the finger)
-                continue
-            j = i - a
-            code[j] = int(g.solution.result._value)
-            its[j] = int(g.solution.iterations)
-            res[j] = float(g.solution.max_residual)
-            if g.converged:
-                trace = release_force(g, topology=g.topology, **release_kwargs) if pulled else None
-                for name in outputs:
-                    if name in RELEASE_OUTPUTS:
-                        v = RELEASE_OUTPUTS[name](trace)
-                    elif name in GRASP_OUTPUTS:
-                        v = GRASP_OUTPUTS[name](g)
-                    else:
-                        v = OUTPUTS[name](g.solution, g.finger)
-                    outs[name][j] = float(v)
-        yield a, _chunk_result(arrays, slice(a, z), outs, code, its, res, diagnosis)

@@ -3,22 +3,31 @@ back-beam clamp length against object size (Sheikh Sofla et al. 2025, Figs. 4-5,
 
 Nothing here is tuned to the paper's numbers: the fingers are our assumed Finger-1
 (examples/finger1.toml) and the paper's figures are printed beside ours for context.
+The record that lets an interrupted study go on is `_study_record`.
 """
 
 import dataclasses
-import hashlib
-import json
 import os
 
 import equinox as eqx
-import jax
 import numpy as np
 
-from . import io as fio
+from ._bases import PinnedBase
 from ._finger import Adaptor, Finger
-from ._grasp import GraspSolution, ReleaseTrace, grasp, release_force
+from ._grasp import grasp
+from ._grasp_solution import GraspSolution
 from ._objects import Circle
+from ._release import release_force
 from ._solution import RESULTS
+from ._study_record import StudyRecordError as StudyRecordError
+from ._study_record import (
+    finger_digest,
+    read_record,
+    study_hash,
+    trace_from_record,
+    trace_record,
+    write_record,
+)
 
 # The paper's figures (quoted for comparison only).
 PAPER_CONTACT_FORCE_GAIN = 260.0  # %, simulated, 18 mm object (Fig. 4)
@@ -32,7 +41,7 @@ PAPER_RELEASE_RANGE = (122.0, 205.0)
 ABOVE_SUPPORT = 18.0
 
 ORIGINAL = Adaptor()
-MODIFIED = Adaptor(front_base="pinned", back_clamp_length=20.0, support_length=60.0)
+MODIFIED = Adaptor(front_base=PinnedBase(), back_clamp_length=20.0, support_length=60.0)
 
 
 def with_object(finger: Finger, diameter: float, height: float = 60.0, clearance: float = 0.5):
@@ -107,14 +116,14 @@ def compare_adaptors(
         "pull_step": float(pull_step),
         "friction": float(friction),
     }
-    digest = _study_hash("compare", finger, settings)
+    digest = study_hash("compare", finger, settings)
     done = {}  # (diameter, adaptor name) -> ReleaseTrace
     if record is not None:
         record = os.fspath(record)
-        kept = _read_record(record, digest, "compare", say)
+        kept = read_record(record, digest, "compare", say)
         for key, t in (kept or {}).get("release", {}).items():
             d, name = key.split(" ")
-            done[float(d), name] = _trace_from_record(t)
+            done[float(d), name] = trace_from_record(t)
         if kept is not None:
             n = 2 * len(settings["release_diameters"])
             say(f"continuing {record}: {len(done)} of {n} release traces done")
@@ -122,8 +131,8 @@ def compare_adaptors(
     def keep():
         n = 2 * len(settings["release_diameters"])
         rec = {"study_hash": digest, "complete": len(done) == n, **settings}
-        rec["release"] = {f"{d:g} {name}": _trace_record(t) for (d, name), t in done.items()}
-        _write_record(record, rec)
+        rec["release"] = {f"{d:g} {name}": trace_record(t) for (d, name), t in done.items()}
+        write_record(record, rec)
 
     base = with_object(finger, diameter)
     say(f"grasp, {diameter:g} mm object, original adaptor")
@@ -154,25 +163,6 @@ def compare_adaptors(
     if record is not None and not os.path.exists(record):
         keep()  # (no trace to run)
     return Comparison(closing, g0, g1, release, placed)
-
-
-def _trace_record(t: ReleaseTrace) -> dict:
-    names = ("pull", "force", "normal_force", "peak", "peak_pull", "complete", "message")
-    return {k: getattr(t, k) for k in names}
-
-
-def _trace_from_record(t: dict) -> ReleaseTrace:
-    num = lambda x: np.nan if x is None else float(x)  # (JSON keeps NaN as null)
-    arr = lambda x: np.asarray([np.nan if v is None else v for v in x], dtype=float)
-    return ReleaseTrace(
-        pull=arr(t["pull"]),
-        force=arr(t["force"]),
-        normal_force=arr(t["normal_force"]),
-        peak=num(t["peak"]),
-        peak_pull=num(t["peak_pull"]),
-        complete=bool(t["complete"]),
-        message=str(t["message"]),
-    )
 
 
 @dataclasses.dataclass
@@ -219,60 +209,6 @@ def _why_not(g: GraspSolution, actuator_force) -> str:
     return text[: text.find(". ") + 1] if ". " in text else text
 
 
-class StudyRecordError(ValueError):
-    """A study's record file that cannot be read as one (the CLI reports it, no traceback)."""
-
-
-# Bump when a record would mean something else (it keys the records' hashes).
-_RECORD_VERSION = 1
-
-
-def finger_digest(finger: Finger) -> str:
-    """A hash of everything a finger holds (structure, settings and values), the same in
-    every process: two fingers with the same digest solve alike. (Any pytree will do.)"""
-    leaves, treedef = jax.tree_util.tree_flatten(finger)
-    h = hashlib.sha256(str(treedef).encode())
-    for leaf in leaves:
-        a = np.asarray(leaf)
-        h.update(f"{a.dtype}{a.shape}".encode() + a.tobytes())
-    return h.hexdigest()
-
-
-def _study_hash(kind: str, finger: Finger, settings: dict) -> str:
-    key = {"kind": kind, "version": _RECORD_VERSION, "finger": finger_digest(finger), **settings}
-    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
-
-
-def _read_record(path, digest, kind, say):
-    """The record of the study `digest` kept in `path` (a dict), or None when the file is
-    missing or holds another study (said). A file that is no JSON object is refused."""
-    if not os.path.exists(path):
-        return None
-    try:
-        with open(path, encoding="utf-8") as fh:
-            rec = json.load(fh)
-        if not isinstance(rec, dict):
-            raise ValueError("not a JSON object")
-        if "study_hash" not in rec:
-            raise ValueError("a JSON object without a study_hash")
-    except (OSError, ValueError) as exc:
-        raise StudyRecordError(
-            f"{path}: not a {kind} record ({exc}); move it away to start afresh"
-        ) from None
-    if rec.get("study_hash") != digest:
-        say(f"{path} holds another study (finger or settings differ): starting afresh")
-        return None
-    return rec
-
-
-def _write_record(path, rec: dict) -> None:
-    """Rewrite a study's record atomically (an interruption leaves the old or the new)."""
-    parent = os.path.dirname(path)
-    if parent:
-        os.makedirs(parent, exist_ok=True)
-    fio.write_atomic(path, fio.json_text(fio.to_plain(rec)) + "\n")
-
-
 def clamp_study(
     finger: Finger,
     *,
@@ -303,19 +239,7 @@ def clamp_study(
     say = progress or (lambda msg: None)
     lc = np.asarray(clamp_lengths, dtype=float)
     dia = np.asarray(diameters, dtype=float)
-    if np.any(lc > support_length) or np.any(lc < 0):
-        raise ValueError(
-            f"clamp_lengths must lie in [0, support_length = {support_length}], got {lc.tolist()}"
-        )
-    if actuator_force is not None and not (np.isfinite(actuator_force) and actuator_force > 0):
-        raise ValueError(f"actuator_force must be a positive force (N), got {actuator_force}")
-    if not (np.isfinite(friction) and friction >= 0):
-        raise ValueError(f"friction must be a non-negative coefficient, got {friction}")
-    shape = (len(dia), len(lc))
-    cells = {"normal_force": np.full(shape, np.nan), "closing_reached": np.full(shape, np.nan)}
-    if holding:
-        cells["holding_force"] = np.full(shape, np.nan)
-    solved = np.zeros(shape, bool)
+    _check_clamp_study(lc, support_length, actuator_force, friction)
     settings = {
         "diameters": dia.tolist(),
         "clamp_lengths": lc.tolist(),
@@ -326,34 +250,23 @@ def clamp_study(
         "friction": float(friction) if holding else None,
         "pull_step": float(pull_step) if holding else None,
     }
-    digest = _study_hash("clamp-study", finger, settings)
+    digest = study_hash("clamp-study", finger, settings)
+    shape = (len(dia), len(lc))
+    cells = {"normal_force": np.full(shape, np.nan), "closing_reached": np.full(shape, np.nan)}
+    if holding:
+        cells["holding_force"] = np.full(shape, np.nan)
+    solved = np.zeros(shape, bool)
     if record is not None:
         record = os.fspath(record)
-        kept = _read_record(record, digest, "clamp-study", say)
-        if kept is not None:
-            for key in cells:  # (null: failed or not solved)
-                cells[key] = np.asarray(kept[key], dtype=float)
-            solved = np.asarray(kept["solved"], dtype=bool)
-            say(f"continuing {record}: {int(solved.sum())} of {solved.size} grasps done")
-
-    def study():
-        return ClampStudy(
-            dia,
-            lc,
-            float(support_length),
-            cells["normal_force"].copy(),
-            closing=cells["closing_reached"].copy(),
-            actuator_force=settings["actuator_force"],
-            holding_force=cells["holding_force"].copy() if holding else None,
-            friction=float(friction),
-        )
+        cells, solved = _kept_cells(record, digest, cells, solved, say)
+    study = lambda: _clamp_result(dia, lc, settings, cells, friction)
 
     def keep():
         done = bool(solved.all())
         rec = {"study_hash": digest, "complete": done, **settings, **cells, "solved": solved}
         if done:
             rec["best_clamp_length"] = study().best
-        _write_record(record, rec)
+        write_record(record, rec)
 
     how = {"closing": closing} if actuator_force is None else {"actuator_force": actuator_force}
     for i, d in enumerate(dia):
@@ -361,16 +274,16 @@ def clamp_study(
         for j, l in enumerate(lc):
             if solved[i, j]:
                 continue
-            ad = Adaptor(front_base="pinned", back_clamp_length=l, support_length=support_length)
+            ad = Adaptor(
+                front_base=PinnedBase(), back_clamp_length=l, support_length=support_length
+            )
             say(f"{d:g} mm object, l_c = {l:g} mm")
             g = grasp(with_adaptor(base, ad), **how)
             if g.converged:
                 cells["normal_force"][i, j] = float(g.contact.normal_force)
                 cells["closing_reached"][i, j] = float(g.closing)
                 if holding:
-                    say(f"{d:g} mm object: release trace (mu = {friction:g})")
-                    tr = release_force(g, step=pull_step, friction=friction)
-                    cells["holding_force"][i, j] = tr.peak  # (NaN: no point of it solved)
+                    cells["holding_force"][i, j] = _holding_force(g, d, friction, pull_step, say)
             else:
                 say(f"{d:g} mm object, l_c = {l:g} mm: no grasp ({_why_not(g, actuator_force)})")
             solved[i, j] = True
@@ -379,3 +292,48 @@ def clamp_study(
     if record is not None and not os.path.exists(record):
         keep()  # (nothing was left to solve)
     return study()
+
+
+def _check_clamp_study(lc, support_length, actuator_force, friction) -> None:
+    """The clamp study's arguments, checked before any grasp (a ValueError names one)."""
+    if np.any(lc > support_length) or np.any(lc < 0):
+        raise ValueError(
+            f"clamp_lengths must lie in [0, support_length = {support_length}], got {lc.tolist()}"
+        )
+    if actuator_force is not None and not (np.isfinite(actuator_force) and actuator_force > 0):
+        raise ValueError(f"actuator_force must be a positive force (N), got {actuator_force}")
+    if not (np.isfinite(friction) and friction >= 0):
+        raise ValueError(f"friction must be a non-negative coefficient, got {friction}")
+
+
+def _holding_force(g: GraspSolution, diameter, friction, pull_step, say) -> float:
+    """The holding force of a converged grasp: the peak of its release trace (NaN: no
+    point of it solved)."""
+    say(f"{diameter:g} mm object: release trace (mu = {friction:g})")
+    return release_force(g, step=pull_step, friction=friction).peak
+
+
+def _kept_cells(record: str, digest: str, cells: dict, solved, say):
+    """(cells, solved) of the clamp study `digest` as its record keeps them (null: failed
+    or not solved), else those given."""
+    kept = read_record(record, digest, "clamp-study", say)
+    if kept is None:
+        return cells, solved
+    cells = {key: np.asarray(kept[key], dtype=float) for key in cells}
+    solved = np.asarray(kept["solved"], dtype=bool)
+    say(f"continuing {record}: {int(solved.sum())} of {solved.size} grasps done")
+    return cells, solved
+
+
+def _clamp_result(dia, lc, settings: dict, cells: dict, friction) -> ClampStudy:
+    """The clamp study as far as its cells go (copies of them)."""
+    return ClampStudy(
+        dia,
+        lc,
+        settings["support_length"],
+        cells["normal_force"].copy(),
+        closing=cells["closing_reached"].copy(),
+        actuator_force=settings["actuator_force"],
+        holding_force=cells["holding_force"].copy() if settings["holding"] else None,
+        friction=float(friction),
+    )

@@ -7,13 +7,15 @@ sweep into the same directory again continues after the last complete row (an in
 loses at most the chunk being solved); a different sweep there is refused. Every row
 carries a `reason`: empty when the design converged, else the validation error of an
 invalid design or the solver's result and message.
+
+This module runs a sweep into its results directory; the sweep file is read by
+`_sweep_file` and the figure drawn by `_sweep_plot`.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-import hashlib
 import io
 import json
 import math
@@ -24,230 +26,19 @@ import numpy as np
 import tqdm
 
 from . import io as fio
-from ._finger import Finger, FingerError
-from ._grasp import check_objects, unit_direction
 from ._solution import RESULTS
-from ._solve import resolve_mode
+from ._sweep_file import SAMPLINGS as SAMPLINGS
+from ._sweep_file import STATUS_COLUMNS as STATUS_COLUMNS
+from ._sweep_file import Axis as Axis
+from ._sweep_file import Sweep, SweepError, load_sweep, loads_sweep
+from ._sweep_plot import plot_sweep
 from ._version import __version__
 from .batch import INVALID, Diagnosis, iter_batch, iter_grasps, one_line
-from .design import (
-    GRASP_OUTPUTS,
-    OUTPUTS,
-    RELEASE_OUTPUTS,
-    DesignError,
-    check_design_names,
-    get_design,
-)
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
-SAMPLINGS = ("grid", "random")
 RESULTS_CSV, MANIFEST, FIGURE = "results.csv", "manifest.json", "sweep.png"
 GRASP_CHUNK = 16  # designs grasped between two writes of results.csv (one after another)
-STATUS_COLUMNS = ("status", "iterations", "max_residual", "reason")
-# Bump when the meaning of a sweep file changes (it keys the sweep's hash). A change of
-# the CSV's layout alone is handled when a sweep continues (see `_resume`: a CSV written
-# before the `reason` column existed is upgraded in place), so the hash stays.
-_FORMAT = 1
-
-
-class SweepError(fio.FingerFileError):
-    """An invalid sweep file, or an output directory that holds another sweep."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Axis:
-    """One swept design value: uniform in [lo, hi]; `points` grid points (grid only)."""
-
-    name: str
-    lo: float
-    hi: float
-    points: int | None = None
-
-
-@dataclasses.dataclass(frozen=True)
-class Sweep:
-    """A parsed sweep file. `designs()` gives the design values, one row per design."""
-
-    source: str
-    finger_path: str
-    finger: Finger
-    settings: fio.SolveSettings
-    axes: tuple[Axis, ...]
-    sampling: str
-    n_random: int
-    seed: int
-    outputs: tuple[str, ...]
-    mode: str
-    chunk_size: int | None  # None: solve_batch's default for the platform
-    digest: str
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(a.name for a in self.axes)
-
-    @property
-    def size(self) -> int:
-        if self.sampling == "grid":
-            return math.prod(a.points for a in self.axes)
-        return self.n_random
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        return ("index", *self.names, *self.outputs, *STATUS_COLUMNS)
-
-    def designs(self) -> dict[str, np.ndarray]:
-        """Grid: every combination, the last name varying fastest. Random: uniform in
-        [lo, hi], drawn by numpy's default_rng(seed), one row per design."""
-        if self.sampling == "grid":
-            grids = [np.linspace(a.lo, a.hi, a.points) for a in self.axes]
-            cols = np.meshgrid(*grids, indexing="ij")
-            return {a.name: c.reshape(-1) for a, c in zip(self.axes, cols)}
-        rng = np.random.default_rng(self.seed)
-        lo = np.asarray([a.lo for a in self.axes])
-        hi = np.asarray([a.hi for a in self.axes])
-        u = lo + (hi - lo) * rng.random((self.n_random, len(self.axes)))
-        return {a.name: u[:, j] for j, a in enumerate(self.axes)}
-
-
-# --------------------------------------------------------------------------------------
-# Reading
-# --------------------------------------------------------------------------------------
-
-_TOP = ("finger", "outputs", "mode", "chunk_size", "sampling", "design")
-_HELP = {
-    "finger": " (path of the base finger file, relative to this sweep file)",
-    "outputs": ' (names of the outputs to record, e.g. ["tip.dx", "max_strain"])',
-    "sampling": ' (table [sampling] with kind = "grid" or "random")',
-    "design": " (one [[design]] table per swept design value, with name and range)",
-    "kind": ' ("grid" or "random")',
-    "name": " (a design value, e.g. adaptor.back_clamp_length or crossbeams.front_s[2])",
-    "range": " ([lo, hi])",
-    "points": " (number of grid points, >= 2)",
-    "n": " (number of random designs)",
-}
-
-
-def loads_sweep(text: str, *, source: str = "<string>", base_dir: str = ".") -> Sweep:
-    """Read a sweep from TOML text; the finger path is relative to `base_dir`."""
-    return fio.loads_study(text, _parse, SweepError, source, base_dir)
-
-
-def load_sweep(path) -> Sweep:
-    """Read a sweep file. Raises SweepError (a FingerFileError) naming the key and value."""
-    return fio.load_study(path, loads_sweep, "sweep", SweepError)
-
-
-def _parse(doc, r, source, base_dir) -> Sweep:
-    r.table(doc, "", _TOP)
-    fio.require_keys(r, doc, "", ("finger", "outputs", "sampling", "design"), _HELP)
-    finger, settings, finger_path, finger_hash = fio.base_finger(doc, r, base_dir)
-
-    mode = r.string(doc.get("mode", settings.mode), "mode", fio.MODES)
-    mode = resolve_mode(finger, mode)
-    chunk_size = doc.get("chunk_size")
-    if chunk_size is not None:
-        chunk_size = r.integer(chunk_size, "chunk_size", minimum=1)
-
-    grasping = settings.grasp is not None  # every design is closed on the objects
-    if grasping:
-        try:
-            check_objects(finger, unit_direction(settings.grasp.direction, "grasp.direction"))
-        except FingerError as e:
-            raise r.error("finger", f"its [grasp] cannot be solved: {e}", doc["finger"]) from None
-    of_grasp = (*GRASP_OUTPUTS, *RELEASE_OUTPUTS)
-    valid = (*of_grasp, *OUTPUTS) if grasping else tuple(OUTPUTS)
-    outputs = doc["outputs"]
-    if not isinstance(outputs, list) or not outputs:
-        raise r.error("outputs", "expected a non-empty array of output names", outputs)
-    for i, name in enumerate(outputs):
-        r.string(name, f"outputs[{i}]")
-        if name in of_grasp and not grasping:
-            raise r.error(
-                f"outputs[{i}]",
-                "is an output of a grasp: the finger file needs objects and a [grasp] table",
-                name,
-            )
-        if name not in valid:
-            raise r.error(
-                f"outputs[{i}]", f"unknown output; valid outputs: {', '.join(valid)}", name
-            )
-        if outputs.index(name) != i:
-            raise r.error(f"outputs[{i}]", "listed twice", name)
-
-    smp = r.table(doc["sampling"], "sampling", ("kind", "n", "seed"))
-    fio.require_keys(r, smp, "sampling", ("kind",), _HELP)
-    kind = r.string(smp["kind"], "sampling.kind", SAMPLINGS)
-    n_random, seed = 0, 0
-    if kind == "random":
-        fio.require_keys(r, smp, "sampling", ("n",), _HELP)
-        n_random = r.integer(smp["n"], "sampling.n", minimum=1)
-        seed = r.integer(smp.get("seed", 0), "sampling.seed", minimum=0)
-    else:
-        for key in ("n", "seed"):
-            if key in smp:
-                raise r.error(f"sampling.{key}", 'is for kind = "random"', smp[key])
-
-    axes = []
-    for i, tbl in enumerate(r.array_of_tables(doc["design"], "design")):
-        p = f"design[{i}]"
-        r.table(tbl, p, ("name", "range", "points"))
-        fio.require_keys(
-            r, tbl, p, ("name", "range") + (("points",) if kind == "grid" else ()), _HELP
-        )
-        name = r.string(tbl["name"], f"{p}.name")
-        try:
-            check_design_names(finger, [name], scalar=True)
-            get_design(finger, [name])  # (e.g. a support length needs a support)
-        except DesignError as e:
-            raise r.error(f"{p}.name", str(e), name) from None
-        if name in (a.name for a in axes):
-            raise r.error(f"{p}.name", "listed twice", name)
-        lo, hi = r.vector(tbl["range"], f"{p}.range", 2, "[lo, hi]")
-        if not lo < hi:
-            raise r.error(f"{p}.range", "needs lo < hi", tbl["range"])
-        points = None
-        if kind == "grid":
-            points = r.integer(tbl["points"], f"{p}.points", minimum=2)
-        elif "points" in tbl:
-            raise r.error(
-                f"{p}.points",
-                'is for kind = "grid" (random sampling takes sampling.n)',
-                tbl["points"],
-            )
-        axes.append(Axis(name, lo, hi, points))
-    if not axes:
-        raise r.error("design", "needs at least one [[design]] table" + _HELP["design"])
-
-    # chunk_size only groups the rows: changing it continues the same sweep.
-    key = {
-        "format": _FORMAT,
-        "finger_sha256": finger_hash,
-        "mode": mode,
-        "sampling": kind,
-        "n": n_random,
-        "seed": seed,
-        "design": [[a.name, a.lo, a.hi, a.points] for a in axes],
-        "outputs": list(outputs),
-    }
-    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
-    sweep = Sweep(
-        source,
-        finger_path,
-        finger,
-        settings,
-        tuple(axes),
-        kind,
-        n_random,
-        seed,
-        tuple(outputs),
-        mode,
-        chunk_size,
-        digest,
-    )
-    if sweep.size > 10**8:
-        raise r.error("design", f"{sweep.size} designs is too many (at most 10^8)")
-    return sweep
 
 
 # --------------------------------------------------------------------------------------
@@ -495,30 +286,8 @@ def run_sweep(
     failed = 0
     with bar:
         if done < sweep.size:
-            if sweep.settings.grasp is not None:
-                batches = iter_grasps(
-                    sweep.finger,
-                    designs,
-                    sweep.outputs,
-                    grasp_kwargs=sweep.settings.grasp.grasp_kwargs(),
-                    release_kwargs={"step": sweep.settings.grasp.pull_step},
-                    mode=sweep.mode,
-                    chunk_size=sweep.chunk_size or GRASP_CHUNK,
-                    start=done,
-                )
-            else:
-                batches = iter_batch(
-                    sweep.finger,
-                    designs,
-                    sweep.outputs,
-                    mode=sweep.mode,
-                    chunk_size=sweep.chunk_size,
-                    integrator=sweep.settings.integrator,
-                    options=sweep.settings.options,
-                    start=done,
-                )
             with open(csv_path, "a", encoding="utf-8", newline="") as fh:
-                for chunks, (first, res) in enumerate(batches, start=1):
+                for chunks, (first, res) in enumerate(_batches(sweep, designs, done), start=1):
                     fh.write(_rows(sweep, first, res, _reasons(res, diagnose)))
                     fh.flush()
                     os.fsync(fh.fileno())
@@ -545,6 +314,32 @@ def run_sweep(
     return SweepRun(done, sweep.size, csv_path, figure, dict(zip(names.tolist(), counts.tolist())))
 
 
+def _batches(sweep: Sweep, designs, done: int):
+    """The sweep's results from design `done` on, chunk by chunk: grasps when the finger
+    file has a [grasp] table, else solves."""
+    if sweep.settings.grasp is not None:
+        return iter_grasps(
+            sweep.finger,
+            designs,
+            sweep.outputs,
+            grasp_kwargs=sweep.settings.grasp.grasp_kwargs(),
+            release_kwargs={"step": sweep.settings.grasp.pull_step},
+            mode=sweep.mode,
+            chunk_size=sweep.chunk_size or GRASP_CHUNK,
+            start=done,
+        )
+    return iter_batch(
+        sweep.finger,
+        designs,
+        sweep.outputs,
+        mode=sweep.mode,
+        chunk_size=sweep.chunk_size,
+        integrator=sweep.settings.integrator,
+        options=sweep.settings.options,
+        start=done,
+    )
+
+
 TEXT_COLUMNS = ("status", "reason")
 
 
@@ -560,57 +355,3 @@ def read_results(csv_path) -> dict[str, np.ndarray]:
         name: np.asarray(col, dtype=object if name in TEXT_COLUMNS else np.float64)
         for name, col in zip(head, cols)
     }
-
-
-# --------------------------------------------------------------------------------------
-# Plots
-# --------------------------------------------------------------------------------------
-
-
-def plot_sweep(sweep: Sweep, data: dict[str, np.ndarray], path: str) -> None:
-    """Line plots for a 1-D sweep, heat maps for a 2-D grid, scatter plots otherwise.
-    Only converged designs are drawn (beyond-limit ones as orange crosses on line and
-    scatter plots)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names, outs = sweep.names, sweep.outputs
-    ok = data["status"] == "converged"
-    beyond = data["status"] == "beyond_limit_load"
-    heat = sweep.sampling == "grid" and len(names) == 2
-    cols = 1 if heat or len(names) == 1 else len(names)
-    fig, axs = plt.subplots(
-        len(outs), cols, figsize=(4.8 * cols, 3.2 * len(outs)), squeeze=False, layout="constrained"
-    )
-    for i, out in enumerate(outs):
-        y = data[out]
-        if heat:
-            a, b = sweep.axes
-            z = np.where(ok, y, np.nan).reshape(a.points, b.points)
-            ax = axs[i, 0]
-            mesh = ax.pcolormesh(
-                np.linspace(b.lo, b.hi, b.points),
-                np.linspace(a.lo, a.hi, a.points),
-                z,
-                shading="nearest",
-            )
-            fig.colorbar(mesh, ax=ax, label=out)
-            ax.set_xlabel(b.name)
-            ax.set_ylabel(a.name)
-            continue
-        for j, name in enumerate(names):
-            ax, x = axs[i, j], data[name]
-            if sweep.sampling == "grid" and len(names) == 1:
-                ax.plot(x[ok], y[ok], "-o", ms=3)
-            else:
-                ax.scatter(x[ok], y[ok], s=8)
-            if np.any(beyond):
-                ax.plot(x[beyond], y[beyond], "x", color="tab:orange", label="beyond limit load")
-                ax.legend(fontsize=7)
-            ax.set_xlabel(name)
-            ax.set_ylabel(out)
-    fig.suptitle(f"{os.path.basename(sweep.source)}: {sweep.size} designs ({sweep.sampling})")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
