@@ -27,7 +27,7 @@ from jax import lax
 import finray_jax as fr
 from finray_jax import _solve
 from finray_jax._integrator import rk_step
-from finray_jax._rod import PlanarRod
+from finray_jax._planar_rod import PlanarRod
 
 
 def finger_with_crossbeams(n):
@@ -99,7 +99,7 @@ def floor(repeats):
     t, _ = median_time(lambda: jax.block_until_ready(many(y0)), 5, 0.3)
     out["rk_step_s"] = t / n_steps
 
-    from finray_jax._rod import segment_flow
+    from finray_jax._flow import segment_flow
 
     starts = problem.start_states(y.reshape(S, -1))
     Q = problem.params(lam)

@@ -6,7 +6,7 @@ It solves a planar fin-ray finger described by a `finray_jax.Finger` (straight m
 clamped bases, no adaptor clamp length, point and distributed loads on the front beam:
 enough for ref-A) with
 
-* the same physics as `finray_jax._rod.PlanarRod.rhs`: a planar Cosserat (Reissner) rod
+* the same physics as `finray_jax._planar_rod.PlanarRod.rhs`: a planar Cosserat (Reissner) rod
   with state (x, z, theta, nx, nz, my), extension (EA), shear (k G A) and bending (EI);
   theta is the tangent angle measured from +z toward +x; n and m are the internal force
   and moment (world frame) with n' = -f and m' = -(p' x n);

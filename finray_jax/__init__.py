@@ -53,13 +53,12 @@ from ._objects import RoundedRectangle as RoundedRectangle
 from ._options import AbstractLinearSolver as AbstractLinearSolver
 from ._options import BandedLinearSolver as BandedLinearSolver
 from ._options import DenseLinearSolver as DenseLinearSolver
+from ._planar_rod import PlanarRod as PlanarRod
 from ._reference import ref_finger_a as ref_finger_a
 from ._release import ReleaseTrace as ReleaseTrace
 from ._release import release_force as release_force
 from ._rigid import RigidEstimate as RigidEstimate
 from ._rigid import rigid_contact_estimate as rigid_contact_estimate
-from ._rod import PlanarRod as PlanarRod
-from ._rod import SpatialRod as SpatialRod
 from ._solution import RESULTS as RESULTS
 from ._solution import BeamSolution as BeamSolution
 from ._solution import Solution as Solution
@@ -68,6 +67,7 @@ from ._solve import SolverOptions as SolverOptions
 from ._solve import limit_load as limit_load
 from ._solve import solve_finger as solve_finger
 from ._solve import topology_of as topology_of
+from ._spatial_rod import SpatialRod as SpatialRod
 from ._stability import CriticalPoint as CriticalPoint
 from ._stability import Stability as Stability
 from ._version import __version__ as __version__

@@ -5,17 +5,14 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._assembly import SegmentTable
+from ._abstract_rod import TAPER_NODES
 from ._finger import Material, Section
+from ._flow import segment_flow, segment_trajectories
 from ._geometry import AbstractTorsion, PaperTorsion, as_torsion, section_stiffness
 from ._integrator import Integrator
-from ._rod import (
-    TAPER_NODES,
-    PlanarRod,
-    rod_model,
-    segment_flow,
-    segment_trajectories,
-)
+from ._planar_rod import PlanarRod
+from ._rod import rod_model
+from ._segment_table import SegmentTable
 from ._types import as_float, check_x64
 
 

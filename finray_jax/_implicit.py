@@ -22,8 +22,8 @@ from jax import lax
 
 from . import _banded
 from ._assembly import Problem
+from ._flow import apply_flow_jacobians, flow_jacobians
 from ._options import BandedLinearSolver
-from ._rod import apply_flow_jacobians, flow_jacobians
 from ._steps import natural_residual
 
 

@@ -9,9 +9,10 @@ import jax.numpy as jnp
 from jax import lax
 
 from . import _banded
-from ._assembly import Problem, build_topology, segment_table
+from ._assembly import Problem
 from ._contact import check_friction
 from ._continuation import continuation, path, stopped
+from ._cuts import build_topology
 from ._finger import (
     BACK,
     FRONT,
@@ -26,6 +27,7 @@ from ._integrator import Integrator
 from ._newton import WarmStart, linear_solver_of, on_branch, solve_root
 from ._options import MODES, BandedLinearSolver, SolverOptions
 from ._rotation import log_so3, planar_frame
+from ._segment_table import segment_table
 from ._solution import (
     RESULTS,
     BeamSolution,

@@ -37,8 +37,8 @@ import numpy as np
 import scipy.linalg
 
 from ._finger import FingerError
+from ._flow import flow_jacobians
 from ._members import energy
-from ._rod import flow_jacobians
 from ._solve import make_problem
 
 KIN = slice(0, 3)  # (x, z, theta) in a planar state

@@ -71,9 +71,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._assembly import segment_table  # (the solver's own segment lengths)
 from ._finger import BACK, CENTRELINE_SAMPLES, FRONT, Finger
 from ._geometry import arc_point, geometry, thickness_at, xz
+from ._segment_table import segment_table  # (the solver's own segment lengths)
 from ._types import as_float
 
 __all__ = [

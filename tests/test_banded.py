@@ -11,7 +11,7 @@ import pytest
 
 import finray_jax as fr
 import finray_jax.io
-from finray_jax import _banded, _integrator, _rod, _solve
+from finray_jax import _banded, _flow, _integrator, _solve, _spatial_rod
 from finray_jax._rotation import exp_so3
 
 MODIFIED = fr.Adaptor(front_base=fr.PinnedBase(), back_clamp_length=20.0, support_length=60.0)
@@ -213,7 +213,7 @@ def _flow_jvps(model, Y0u, theta, Q, dYu, dQ):
     with start states built from unknowns (so frame tangents lie on SO(3))."""
     integ = fr.Integrator()
     full = lambda yu: jax.vmap(model.full_from_unknown)(yu, theta)
-    custom = lambda yu, q: _rod.segment_flow(model, integ, full(yu), q)
+    custom = lambda yu, q: _flow.segment_flow(model, integ, full(yu), q)
     plain = lambda yu, q: jax.vmap(lambda y, qq: _integrator.integrate(model, integ, y, qq, False))(
         full(yu), q
     )
@@ -243,7 +243,7 @@ def test_reduced_direction_flow_jvp_is_exact(grasped, mode):
 
 def test_spatial_tangent_basis_spans_frame_tangents():
     rng = np.random.default_rng(3)
-    model = _rod.SpatialRod()
+    model = _spatial_rod.SpatialRod()
     R = exp_so3(jnp.asarray(rng.standard_normal(3)))
     y = jnp.concatenate([jnp.ones(3), R.reshape(9), jnp.arange(6.0)])
     w = jnp.asarray(rng.standard_normal(3))

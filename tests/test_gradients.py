@@ -516,7 +516,7 @@ def test_design_values_never_recompile():
         fr.validate_finger(f)
         # Valid for the base topology (order of events kept). With contact (here the
         # support) topology_of(f) itself may differ: the number of sub-cuts between two
-        # events is fixed from the concrete lengths (_assembly._subdivide), so an eager
+        # events is fixed from the concrete lengths (_cuts._subdivide), so an eager
         # solve_finger without topology= would recompile; with topology= it does not.
         assert bool(design.design_valid(f, topo)), name
         variants[name] = f
@@ -559,7 +559,7 @@ def test_rigid_column_shares_the_length_direction(mode):
     the same Jacobians at every step point as integrating both, on a back beam clamped
     over 7 mm with a distributed load inside the clamp (so the transport moves the
     position, the force and the moment)."""
-    from finray_jax import _rod, _solve
+    from finray_jax import _flow, _solve
     from finray_jax._finger import DistributedLoad
 
     f = design.set_design(fr.ref_finger_a("L3"), {"adaptor.back_clamp_length": 7.0})
@@ -575,7 +575,7 @@ def test_rigid_column_shares_the_length_direction(mode):
     Q = p.params(1.0)
     assert int(jnp.sum(p.table.rigid > 0)) >= 1
     cols = np.array([0, 1, 5])
-    run = lambda merge: _rod.flow_jacobians(
+    run = lambda merge: _flow.flow_jacobians(
         p.model, integ, Y0, Q, save_all=True, q_columns=cols, merge_rigid=merge
     )
     out, jy, jq = jax.jit(lambda: run(True))()

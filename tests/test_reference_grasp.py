@@ -26,7 +26,7 @@ support carries its load on the back beam's last 0.02-0.06 mm before l_s (the re
 resolves it: the edge's penetration converges to 0.0050 mm at 2 mm in the tight case),
 far below a 0.31 mm step, and at the tight case's k_s even the support's bending length
 (4 EI / k_s)^(1/4) is below a step. finray_jax cuts the last segment before l_s once
-more, a sixteenth of it from the end (finray_jax._assembly.EDGE_PIECE), and that short
+more, a sixteenth of it from the end (finray_jax._cuts.EDGE_PIECE), and that short
 piece's 0.02 mm steps read the edge: the tight grasps at 16 steps agree with 64 steps to
 4e-4 of each output's scale. Without that piece the 16-step tight grasp has a spurious
 root, 3.5 % off in the normal force and 9-12 % in the back clamp's moment.

@@ -119,7 +119,7 @@ def test_planar_frame_convention(theta):
 def test_spatial_step_pulls_the_frame_back_to_so3(v):
     """SpatialRod.after_step: one Newton-Schulz step of the polar factor squares the drift
     from SO(3), moves R by no more than the drift, and leaves p, n, m alone."""
-    from finray_jax._rod import SpatialRod
+    from finray_jax._spatial_rod import SpatialRod
 
     R = np.asarray(exp_so3(jnp.asarray(v)))
     drift = 1e-5 * RNG.normal(size=(3, 3))

@@ -11,9 +11,10 @@ from scipy import optimize
 import finray_jax as fr
 import finray_jax.io
 from finray_jax import _fold, design
+from finray_jax._flow import flow_jacobians
 from finray_jax._grasp_inputs import with_stiffness
 from finray_jax._integrator import Integrator
-from finray_jax._rod import PlanarRod, flow_jacobians
+from finray_jax._planar_rod import PlanarRod
 from finray_jax._solution import RESULTS, status_name
 from finray_jax._solve import SolverOptions, direct_core
 from finray_jax._stability import (
