@@ -178,7 +178,8 @@ def test_grasp_normal_force_estimate_against_a_fine_solve():
     import dataclasses
 
     from finray_jax import io as fio
-    from finray_jax._grasp import contact_result, with_stiffness
+    from finray_jax._contact_result import contact_result
+    from finray_jax._grasp_inputs import with_stiffness
     from finray_jax._solve import direct_core
 
     root = pathlib.Path(__file__).resolve().parents[1]
