@@ -62,17 +62,16 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import functools
 import re
 from collections.abc import Callable, Mapping
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._finger import BACK, CENTRELINE_SAMPLES, FRONT, Finger
-from ._geometry import arc_point, geometry, thickness_at, xz
+from ._finger import BACK, FRONT, Finger
+from ._geometry import arc_point, geometry, thickness_at
+from ._rules import GEOMETRY_RULES, rules_hold
 from ._segment_table import segment_table  # (the solver's own segment lengths)
 from ._types import as_float
 
@@ -297,52 +296,19 @@ def set_design(finger: Finger, values: Mapping[str, jax.typing.ArrayLike]) -> Fi
 
 def design_valid(finger: Finger, topology) -> jax.Array:
     """Traced check that a design is valid and keeps `topology` (the order of attachments
-    and load points along each beam of the finger the topology was built from).
+    and load points along each beam of the finger the topology was built from): a bool
+    scalar.
 
-    A traced subset of `validate_finger`: finite values, positive stiffnesses and lengths,
-    attachments inside their beams and in the topology's order, the adaptor's rules (clamps
-    inside their beams, on clamped bases of straight beams only; the support from the end
-    of the back beam's clamp to at most its length, behind a straight back beam), and the
-    geometry rules (`geometry_valid`: main beams apart except at their tip, never crossing;
-    crossbeams long enough).
+    Valid: every rule of `validate_finger` on design values (`_rules.RULES`, written once
+    for both): finite values, positive stiffnesses and lengths, attachments inside their
+    beams and in order, the adaptor's rules (clamps inside their beams, on clamped bases
+    of straight beams only; the support from the end of the back beam's clamp to at most
+    its length, behind a straight back beam), and the geometry rules (`geometry_valid`).
+    The loads, the contact model and the objects are the base finger's, checked eagerly.
     """
-    leaves = [x for x in jax.tree_util.tree_leaves(finger) if eqx.is_array(x)]
-    ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
-    m, cb = finger.material, finger.crossbeams
-    positive = [m.E, m.shear_coefficient, finger.front.thickness, finger.back.thickness]
-    positive += [finger.front.depth, finger.back.depth, cb.thickness, cb.depth]
-    positive += [
-        s.tip_thickness for s in (finger.front, finger.back) if s.tip_thickness is not None
-    ]
-    for x in positive:
-        ok = ok & jnp.all(x > 0)
-    ok = ok & (m.nu > -1.0) & (m.nu < 0.5)
     geo = geometry(finger)
     table = segment_table(topology, finger, geo)
-    ok = ok & jnp.all(table.length >= 0.0) & jnp.all(geo.length[2:] > 1e-9)
-    lf, lb = geo.length[FRONT], geo.length[BACK]
-    ok = ok & (lf > 0) & (lb > 0)
-    ok = ok & jnp.all((cb.front_s > 0) & (cb.front_s < lf) & (cb.back_s > 0) & (cb.back_s < lb))
-    ok = ok & jnp.all(jnp.diff(cb.front_s) > 0) & jnp.all(jnp.diff(cb.back_s) > 0)
-    ad = finger.adaptor
-    for clamp, length, kind, kappa in (
-        (ad.front_clamp_length, lf, ad.front_base, finger.front_curvature),
-        (ad.back_clamp_length, lb, ad.back_base, finger.back_curvature),
-    ):
-        ok = ok & (clamp >= 0) & (clamp < length)
-        ok = ok & ((clamp == 0) | (kappa == 0))  # (no clamp on a curved beam yet)
-        if not kind.holds_clamp:
-            ok = ok & (clamp == 0)
-    if ad.support_length is not None:
-        ls = ad.support_length
-        ok = ok & (ad.back_clamp_length <= ls) & (ls <= lb) & (finger.back_curvature == 0)
-    tip = xz(finger.tip)
-    for base, kappa in (
-        (finger.front_base, finger.front_curvature),
-        (finger.back_base, finger.back_curvature),
-    ):
-        ok = ok & (jnp.abs(kappa) * jnp.linalg.norm(tip - xz(base)) / 2.0 < 0.99)
-    return ok & geometry_valid(finger, geo)
+    return rules_hold(finger, geo) & jnp.all(table.length >= 0.0)
 
 
 # design_valid compiled once per topology, for eager callers (a batch's or optimiser's
@@ -350,184 +316,14 @@ def design_valid(finger: Finger, topology) -> jax.Array:
 design_valid_jit = eqx.filter_jit(design_valid)
 
 
-# --------------------------------------------------------------------------------------
-# The geometry rules, traced. They mirror the eager (numpy) checks of `validate_finger` in
-# `_finger.py` (`_centrelines`, `_nearest`, `_crossing`, `_check_main_beams_apart`, and the
-# crossbeams' least length): the same samples, polylines, clearances and tip zone, so that
-# the two agree to round-off. A change to one must be made to the other; the agreement is
-# tested in tests/test_design.py.
-# --------------------------------------------------------------------------------------
-
-_SAMPLES = CENTRELINE_SAMPLES  # 101 points a beam
-
-
-class _Lines(NamedTuple):
-    """Both main beams' undeformed centrelines (jnp), front then back on the leading axis,
-    as two `_finger._Centreline`s without their polylines (see `_polylines`)."""
-
-    s: jax.Array  # (2, n) arc lengths, 0 to the beam's length
-    p: jax.Array  # (2, n, 2) points (x, z), the last one the tip exactly
-    t0: jax.Array  # (2,) thickness at the base
-    t1: jax.Array  # (2,) thickness at the tip
-    length: jax.Array  # (2,)
-    curvature: jax.Array  # (2,)
-    tangent_at_tip: jax.Array  # (2, 2) unit tangent (x, z), base to tip
-
-    def half(self, s, beam=slice(None)):
-        """Half thickness at arc lengths s: of both beams (s of shape (2, ...), front
-        first), or of one (beam = FRONT or BACK)."""
-        t0, t1, length = self.t0[beam], self.t1[beam], self.length[beam]
-        if isinstance(beam, slice):
-            shape = (-1,) + (1,) * (jnp.ndim(s) - 1)
-            t0, t1, length = (x.reshape(shape) for x in (t0, t1, length))
-        return 0.5 * (t0 + (t1 - t0) * s / length)
-
-
-def _lines(finger: Finger, geo, straight: bool, n: int = _SAMPLES) -> _Lines:
-    """The front and back beams' centrelines at n points each (`_finger._centrelines`).
-    straight=True: both beams are known to be straight (zero curvature); the points are
-    computed as for an arc of zero curvature (the same numbers), with one sine and one
-    cosine a beam."""
-    base = geo.base[:2, ::2]
-    theta, kappa, length = geo.theta[:2], geo.curvature[:2], geo.length[:2]
-    s = jnp.linspace(0.0, length, n, axis=-1)  # (2, n)
-    if straight:  # theta + 0.5 * 0 * s == theta, s * sinc(0) == s
-        direction = jnp.stack([jnp.sin(theta), jnp.cos(theta)], axis=-1)[:, None]
-        p = base[:, None] + s[..., None] * direction
-    else:
-        half = theta[:, None] + 0.5 * kappa[:, None] * s
-        r = s * jnp.sinc(0.5 * kappa[:, None] * s / jnp.pi)  # sinc(x) = sin(pi x) / (pi x)
-        p = base[:, None] + r[..., None] * jnp.stack([jnp.sin(half), jnp.cos(half)], axis=-1)
-    p = p.at[:, -1].set(finger.tip)  # the shared tip exactly
-    sections = (finger.front, finger.back)
-    t0 = jnp.stack([sec.thickness for sec in sections])
-    t1 = jnp.stack(
-        [sec.thickness if sec.tip_thickness is None else sec.tip_thickness for sec in sections]
-    )
-    end = theta + kappa * length
-    tangent = jnp.stack([jnp.sin(end), jnp.cos(end)], axis=-1)
-    return _Lines(s, p, t0, t1, length, kappa, tangent)
-
-
-def _polylines(lines: _Lines, ends_only: bool):
-    """(arc lengths (2, m), points (2, m, 2)) of the polylines other points are measured
-    against: as in the eager check, a beam's two ends when it is straight, its points when
-    it is an arc. ends_only=False gives a fixed size whatever the curvatures (traced
-    values): a straight beam's polyline is then its base repeated, then its tip, whose
-    zero-length segments measure nothing (`_nearest` leaves them out) and cross nothing."""
-    ends = jnp.array([0, -1])
-    if ends_only:
-        return lines.s[:, ends], lines.p[:, ends]
-    straight = (lines.curvature == 0.0)[:, None]
-    ends_s = jnp.zeros_like(lines.s).at[:, -1].set(lines.length)
-    ends_p = jnp.broadcast_to(lines.p[:, :1], lines.p.shape).at[:, -1].set(lines.p[:, -1])
-    path_s = jnp.where(straight, ends_s, lines.s)
-    return path_s, jnp.where(straight[..., None], ends_p, lines.p)
-
-
-def _nearest(path_s, path_p, points, want_s: bool):
-    """Distance from each point (k, 2) to a polyline (arc lengths (m,), points (m, 2)), and
-    the arc length of the nearest point on it (`_finger._nearest`), or None when want_s is
-    False. Zero-length segments (the padding of `_polylines`) are left out.
-
-    This runs per design in every batch, so it is written for the CPU: one division per
-    segment rather than per pair, squared distances (a square root per point), the first
-    nearest segment picked by integer reductions rather than argmin and a gather. The same
-    distances and arc lengths as the eager check to round-off."""
-    ax, az = path_p[:-1, 0], path_p[:-1, 1]
-    ex, ez = jnp.diff(path_p[:, 0]), jnp.diff(path_p[:, 1])
-    den = ex * ex + ez * ez
-    real = den > 0.0
-    inv = 1.0 / jnp.where(real, den, 1.0)
-    rx, rz = points[:, :1] - ax, points[:, 1:] - az  # (k, m - 1)
-    t = jnp.clip((rx * ex + rz * ez) * inv, 0.0, 1.0)
-    qx, qz = rx - t * ex, rz - t * ez
-    # (the select also keeps XLA's CPU backend from splitting this into several passes)
-    q = jnp.where(real, qx * qx + qz * qz, jnp.inf)
-    q_min = jnp.min(q, axis=1)
-    if not want_s:
-        return jnp.sqrt(q_min), None
-    seg = jnp.arange(q.shape[1])
-    j = jnp.min(jnp.where(q == q_min[:, None], seg, q.shape[1]), axis=1)  # argmin
-    s = path_s[:-1] + t * jnp.diff(path_s)
-    return jnp.sqrt(q_min), jnp.sum(jnp.where(seg == j[:, None], s, 0.0), axis=1)
-
-
-def _crosses(front_p, back_p):
-    """Whether two polylines (points (m, 2)), the front and back beams', cross before the
-    tip they share (`_finger._crossing`): a back segment and a front segment cross when
-    each one's ends lie strictly on both sides of the other. The side of every vertex of
-    one polyline relative to every segment of the other is computed once (the eager check
-    computes it per pair of segments, from the segment's start and direction: the same to
-    round-off)."""
-    P, Q = back_p, front_p
-    ax, az = P[:-1, 0, None], P[:-1, 1, None]  # back segments (i), down
-    bx, bz = jnp.diff(P[:, 0])[:, None], jnp.diff(P[:, 1])[:, None]
-    cx, cz = Q[None, :-1, 0], Q[None, :-1, 1]  # front segments (j), across
-    dx, dz = jnp.diff(Q[:, 0])[None], jnp.diff(Q[:, 1])[None]
-    side_q = bx * (Q[None, :, 1] - az) - bz * (Q[None, :, 0] - ax)  # front vertices, (i, j)
-    side_p = dx * (P[:, None, 1] - cz) - dz * (P[:, None, 0] - cx)  # back vertices, (i, j)
-    d1, d2 = side_q[:, :-1], side_q[:, 1:]  # sides of the front segment's ends
-    d3, d4 = side_p[:-1], side_p[1:]  # sides of the back segment's ends
-    hit = (d1 * d2 < 0) & (d3 * d4 < 0)
-    hit = hit.at[-1, -1].set(False)  # the last segments meet at the tip
-    return jnp.any(hit)
-
-
-def _main_beams_apart(finger: Finger, geo, straight: bool) -> jax.Array:
-    """`_finger._check_main_beams_apart` and the crossbeams' least length, as a bool.
-    straight=True: both main beams are known to be straight."""
-    lines = _lines(finger, geo, straight)
-    front, back = FRONT, BACK
-    # Near the tip the beams necessarily come together: within r of it, the centrelines
-    # of two beams meeting at an angle alpha lie about r sin(alpha) apart. Exempt twice the
-    # distance over which that is less than the two half thicknesses at the tip (alpha
-    # capped at 90 degrees), but never more than a quarter of the shorter beam's length.
-    cos_alpha = jnp.clip(lines.tangent_at_tip[front] @ lines.tangent_at_tip[back], -1.0, 1.0)
-    sin_alpha = jnp.where(cos_alpha <= 0.0, 1.0, jnp.sqrt(1.0 - cos_alpha**2))
-    at_tip = lines.half(lines.length[front], front) + lines.half(lines.length[back], back)
-    zone = 0.25 * jnp.minimum(lines.length[front], lines.length[back])
-    shorter = 2.0 * at_tip < zone * sin_alpha
-    zone = jnp.where(shorter, 2.0 * at_tip / jnp.where(shorter, sin_alpha, 1.0), zone)
-
-    path_s, path_p = _polylines(lines, straight)
-    ok = ~_crosses(path_p[front], path_p[back])
-    # Every sample of each beam (the base first) against the other beam's polyline. The
-    # nearest arc length matters only on a tapered beam (0.5 (t0 + 0 s / L) is the same
-    # at every s).
-    tapered = any(sec.tip_thickness is not None for sec in (finger.front, finger.back))
-    other = jnp.array([back, front])
-    nearest = jax.vmap(functools.partial(_nearest, want_s=tapered))
-    d, s_other = nearest(path_s[other], path_p[other], lines.p)  # (2, n) each
-    other_lines = _Lines(*(x[other] for x in lines))
-    least = lines.half(lines.s) + other_lines.half(s_other if tapered else 0.0 * lines.s)
-    ok = ok & jnp.all(d[:, 0] >= least[:, 0])  # the bases
-    keep = jnp.linalg.norm(lines.p - finger.tip, axis=-1) >= zone
-    ok = ok & ~jnp.any(keep & (d / least < 1.0))
-
-    cb = finger.crossbeams
-    least = 0.5 * (lines.half(cb.front_s, front) + lines.half(cb.back_s, back))
-    return ok & jnp.all(geo.length[2:] >= least)
-
-
 @jax.jit  # eager calls (the optimiser's check of a step) compile once, not every time
 def geometry_valid(finger: Finger, geo=None) -> jax.Array:
-    """Traced geometry rules of `validate_finger` (see docs/finger-format.md, "Geometry
-    rules"), a bool scalar: each base at least half the front plus half the back
-    thickness from the other beam's centreline; the undeformed centrelines (sampled as the
-    eager check samples them) never crossing before the tip and that far apart outside
-    the exempt zone at the tip; every crossbeam at least half the sum of the main beams'
-    half thicknesses at its ends long."""
-    geo = geometry(finger) if geo is None else geo
-    # Two straight beams (the usual case) need only their ends as polylines, a hundredth
-    # of the work, where the branch is taken: one design at a time (as a batch runs on
-    # the CPU by default), or a vmapped batch whose curvatures are not batched (a batch
-    # over a curvature computes both branches).
-    return jax.lax.cond(
-        (geo.curvature[FRONT] == 0.0) & (geo.curvature[BACK] == 0.0),
-        lambda: _main_beams_apart(finger, geo, straight=True),
-        lambda: _main_beams_apart(finger, geo, straight=False),
-    )
+    """The geometry rules of `validate_finger` (see docs/finger-format.md, "Geometry
+    rules"), traced, a bool scalar: each base at least half the front plus half the back
+    thickness from the other beam's centreline; the undeformed centrelines never crossing
+    before the tip and that far apart outside the exempt zone at the tip; every crossbeam
+    at least half the sum of the main beams' half thicknesses at its ends long."""
+    return rules_hold(finger, geo, GEOMETRY_RULES)
 
 
 # --------------------------------------------------------------------------------------
