@@ -334,4 +334,8 @@ def build_parser() -> Parser:
     p._commands = sub.choices
     for add in _COMMAND_PARSERS:
         add(sub)
+    for command in sub.choices.values():
+        command.add_argument(
+            "-q", "--quiet", action="store_true", help="no progress messages on stderr"
+        )
     return p

@@ -55,9 +55,56 @@ def table(head, rows) -> list[str]:
     return [fmt(head)] + [fmt(r) for r in rows]
 
 
+class _Voice:
+    """Whether progress lines are shown (`--quiet` silences them) and which programs
+    this process has compiled (XLA compiles each once per process; the persistent
+    compilation cache serves later runs)."""
+
+    quiet = False
+    compiled: set[str] = set()
+
+
+def set_quiet(quiet: bool) -> None:
+    _Voice.quiet = bool(quiet)
+
+
+def progress_stream():
+    """The stream progress goes to: stderr, or None under --quiet."""
+    return None if _Voice.quiet else sys.stderr
+
+
 def progress(msg):
-    """A progress line on stderr (stdout keeps the results)."""
-    print(f"  ... {msg}", file=sys.stderr, flush=True)
+    """A progress line on stderr (stdout keeps the results), unless --quiet."""
+    if not _Voice.quiet:
+        print(f"  ... {msg}", file=sys.stderr, flush=True)
+
+
+# How long the first compile of each program takes on one core of the 2-core reference
+# machine (benchmarks/README.md); the persistent cache cuts a later run's to about a tenth.
+COMPILE_TIMES = {
+    "planar solver": "about 7 s",
+    "3-D solver": "about 10 s",
+    "limit-load search": "about 8 s",
+    "contact solver": "about 20-30 s",
+    "batch solver": "about 10-20 s",
+    "objective and its gradient": "about 60-80 s",
+}
+
+
+def compiling(program: str, what: str = "for this finger") -> None:
+    """Say, before its first compile in this process, that `program` is compiling."""
+    if program in _Voice.compiled:
+        return
+    _Voice.compiled.add(program)
+    progress(
+        f"compiling the {program} {what}, {COMPILE_TIMES[program]} the first time; "
+        "cached afterwards"
+    )
+
+
+def solver_name(mode: str) -> str:
+    """The compiled program's name for a solve mode ("planar", "spatial")."""
+    return "3-D solver" if mode == "spatial" else "planar solver"
 
 
 def shown_path(path) -> str:
@@ -66,14 +113,29 @@ def shown_path(path) -> str:
     return path if rel.startswith("..") else rel
 
 
+def say_record_interrupted(record: str, what: str) -> None:
+    """The interrupt's one line for a study that keeps its finished work in `record`
+    (named only when it exists)."""
+    if os.path.exists(record):
+        kept = f"finished {what} are in {record}: run the same command to continue"
+    else:
+        kept = f"no {what} had finished (nothing written yet): the same command starts afresh"
+    print(f"finray: interrupted; {kept}", file=sys.stderr)
+
+
+def finished_rows(csv_path: str) -> int:
+    """Rows after the header of a results CSV (0 when there is none)."""
+    try:
+        with open(csv_path, encoding="utf-8") as fh:
+            return max(sum(1 for line in fh if line.strip()) - 1, 0)
+    except OSError:
+        return 0
+
+
 def say_interrupted(csv_path: str, what: str) -> None:
     """The interrupt's one line: how many finished rows the CSV keeps (none: nothing to
     continue from, a re-run starts afresh)."""
-    try:
-        with open(csv_path, encoding="utf-8") as fh:
-            rows = max(sum(1 for line in fh if line.strip()) - 1, 0)
-    except OSError:
-        rows = 0
+    rows = finished_rows(csv_path)
     if rows:
         kept = f"{rows} finished {what} are in {csv_path}: run the same command to continue"
     else:

@@ -11,7 +11,16 @@ import finray_jax as fr
 from . import io as fio
 from . import optimize_file
 from . import sweep as fsweep
-from ._cli_common import EXIT_FAILED, EXIT_OK, UserError, count, num, shown_path, table
+from ._cli_common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    UserError,
+    compiling,
+    count,
+    num,
+    shown_path,
+    table,
+)
 from ._finger import loads_are_zero
 from ._grasp import check_objects, unit_direction
 from .plot import save_solution_figure
@@ -166,6 +175,7 @@ def limit_command(args) -> int:
     kwargs = settings.solve_kwargs()
     if args.mode is not None:
         kwargs["mode"] = args.mode
+    compiling("limit-load search")
     t0 = time.perf_counter()
     lim = fr.limit_load(finger, **kwargs)
     factor = float(lim.load_factor)

@@ -8,7 +8,7 @@ import finray_jax as fr
 
 from . import io as fio
 from ._cli_args import resolution_rtol
-from ._cli_common import EXIT_FAILED, EXIT_OK, UserError, num, progress
+from ._cli_common import EXIT_FAILED, EXIT_OK, UserError, compiling, num, progress
 from ._cli_finger import check_grasp_objects, report_resolution
 from .plot import grasp_figure, save_figure
 from .report import grasp_to_dict, rigid_estimate_to_dict
@@ -128,6 +128,7 @@ def grasp_command(args) -> int:
         if gs.actuator_force is None
         else f"actuator force {num(gs.actuator_force)} N"
     )
+    compiling("contact solver", "for this grasp")
     progress(f"grasp, {how}")
     t0 = time.perf_counter()
     g = fr.grasp(finger, **gs.grasp_kwargs())

@@ -8,7 +8,18 @@ import sys
 
 from . import optimizer as fopt
 from . import sweep as fsweep
-from ._cli_common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, UserError, num, say_interrupted
+from ._cli_common import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    UserError,
+    compiling,
+    finished_rows,
+    num,
+    progress,
+    progress_stream,
+    say_interrupted,
+)
 
 
 def _no_design_converged(run) -> str:
@@ -35,10 +46,16 @@ def sweep_command(args) -> int:
         f"sweep {args.sweep}: {sw.size} designs ({sw.sampling}) of {sw.finger_path}, "
         f"values {', '.join(sw.names)}; outputs {', '.join(sw.outputs)}; mode {sw.mode}"
     )
+    csv_path = os.path.join(args.out, fsweep.RESULTS_CSV)
+    done = finished_rows(csv_path)
+    if 0 < done < sw.size:
+        progress(f"resuming: {done} of {sw.size} designs are in {csv_path}; continuing")
+    if done < sw.size:
+        compiling("batch solver", "for this sweep's finger")
     try:
-        run = fsweep.run_sweep(sw, args.out, max_chunks=args.max_chunks, progress=sys.stderr)
+        run = fsweep.run_sweep(sw, args.out, max_chunks=args.max_chunks, progress=progress_stream())
     except KeyboardInterrupt:
-        say_interrupted(os.path.join(args.out, fsweep.RESULTS_CSV), "designs")
+        say_interrupted(csv_path, "designs")
         return EXIT_INTERRUPTED
     counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))
     print(f"wrote {run.csv} ({run.done} of {run.total} designs: {counts or 'none yet'})")
@@ -85,8 +102,9 @@ def optimize_command(args) -> int:
         f"{pr.optimizer}, learning rate {pr.learning_rate:g}, {pr.iterations} iterations"
     )
     try:
+        compiling("objective and its gradient", "for this problem")
         run = fopt.run_optimize(
-            pr, args.out, max_iterations=args.max_iterations, progress=sys.stderr
+            pr, args.out, max_iterations=args.max_iterations, progress=progress_stream()
         )
     except KeyboardInterrupt:
         say_interrupted(os.path.join(args.out, fopt.PROGRESS_CSV), "iterations")

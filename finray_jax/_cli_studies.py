@@ -3,7 +3,6 @@ adaptor, the paper's Fig. 4 and Table 2) and `clamp-study` (the best back-beam c
 length against object size, Fig. 5)."""
 
 import os
-import sys
 import time
 
 import numpy as np
@@ -17,9 +16,11 @@ from ._cli_common import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     UserError,
+    compiling,
     num,
     percent,
     progress,
+    say_record_interrupted,
     table,
 )
 from .plot import clamp_study_figure, grasp_figure, save_figure
@@ -107,16 +108,13 @@ def compare_command(args) -> int:
     finger = _study_finger(args.finger)
     t0 = time.perf_counter()
     kept = os.path.join(args.out, "compare_record.json")
+    compiling("contact solver", "for the two adaptors' grasps")
     try:
         cmp = studies.compare_adaptors(
             finger, closing=args.closing, friction=args.friction, progress=progress, record=kept
         )
     except KeyboardInterrupt:
-        print(
-            f"finray: interrupted; finished release traces are in {kept}: run the same "
-            "command to continue",
-            file=sys.stderr,
-        )
+        say_record_interrupted(kept, "grasps and release traces")
         return EXIT_INTERRUPTED
     print("\n".join(comparison_lines(cmp)))
     print(
@@ -177,6 +175,7 @@ def clamp_study_command(args) -> int:
         )
     finger = _study_finger(args.finger)
     js = os.path.join(args.out, "clamp_study.json")
+    compiling("contact solver", "for the study's grasps")
     try:
         st = studies.clamp_study(
             finger,
@@ -188,10 +187,7 @@ def clamp_study_command(args) -> int:
             record=js,
         )
     except KeyboardInterrupt:
-        print(
-            f"finray: interrupted; finished grasps are in {js}: run the same command to continue",
-            file=sys.stderr,
-        )
+        say_record_interrupted(js, "grasps")
         return EXIT_INTERRUPTED
     _print_clamp_tables(st, args)
     if not np.all(np.isfinite(st.normal_force)):

@@ -35,7 +35,7 @@ from ._cli_common import EXIT_OK as EXIT_OK
 from ._cli_common import EXIT_USER as EXIT_USER
 from ._cli_common import STATUS_EXIT as STATUS_EXIT
 from ._cli_common import UserError as UserError
-from ._cli_common import progress
+from ._cli_common import compiling, progress, set_quiet, solver_name
 from ._cli_finger import (
     check_resolution,
     crossbeam_table,
@@ -47,6 +47,7 @@ from ._cli_grasp import grasp_command
 from ._cli_runs import optimize_command, sweep_command
 from ._cli_studies import clamp_study_command, compare_command
 from ._cli_studies import comparison_lines as _comparison_lines
+from ._solve import resolve_mode
 from .design import DesignError
 from .plot import grasp_figure, save_figure, save_solution_figure
 from .studies import StudyRecordError
@@ -112,6 +113,7 @@ def _solve(finger, settings, mode):
     kwargs = settings.solve_kwargs()
     if mode is not None:
         kwargs["mode"] = mode
+    compiling(solver_name(resolve_mode(finger, kwargs.get("mode", "auto"))))
     t0 = time.perf_counter()
     sol = fr.solve_finger(finger, **kwargs)
     sol.max_residual.block_until_ready()
@@ -225,6 +227,7 @@ def _main(argv) -> int:
             args = parser.parse_args(argv)
         except SystemExit as e:  # --help, --version
             return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USER
+        set_quiet(args.quiet)
         _check_output_paths(args)
         if args.command != "validate":
             enable_compilation_cache()

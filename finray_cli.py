@@ -1,0 +1,83 @@
+"""The `finray` console script's entry point: Ctrl-C ends any command, at any moment,
+with exit status 130 and one line.
+
+This module imports nothing heavy before it takes charge of SIGINT, so an interrupt
+during the (seconds long) import of jax is handled too. SIGINT is blocked in every
+thread (the mask is inherited by the threads jax and XLA start later) and waited for by
+one thread of its own, which sees it at once even while the main thread sits in a long
+XLA compilation. On the first Ctrl-C that thread raises KeyboardInterrupt in the main
+thread, where the command stops, says what it kept (a sweep's finished rows, an
+optimisation's record) and returns 130. If the main thread does not get that far within
+GRACE seconds (the interrupt landed where Python ignores exceptions, such as a garbage
+collection callback, or inside native code that runs on), or on a second Ctrl-C, the
+process ends with 130 right away; everything a command keeps on disk is written
+atomically, so it loses only unfinished work.
+
+The process always leaves through `os._exit` after an interrupt: a normal interpreter
+shutdown with XLA's threads mid-flight can crash in their destructors.
+"""
+
+import _thread
+import os
+import signal
+import sys
+import threading
+
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports it
+GRACE = 5.0  # seconds the command has to stop cleanly after the first Ctrl-C
+LINE = "finray: interrupted"
+
+_interrupted = threading.Event()
+_finished = threading.Event()
+
+
+def _leave(code: int) -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
+def _watch() -> None:
+    """Wait for SIGINT; interrupt the main thread, then make sure the process ends."""
+    signal.sigwait({signal.SIGINT})
+    _interrupted.set()
+    _thread.interrupt_main()
+    try:
+        _wait_for_second_interrupt(GRACE)
+    except TimeoutError:
+        pass
+    if not _finished.is_set():
+        print(LINE, file=sys.stderr)
+        _leave(EXIT_INTERRUPTED)
+
+
+def _wait_for_second_interrupt(timeout: float) -> None:
+    """Return on a second SIGINT; raise TimeoutError after `timeout` s without one."""
+    if signal.sigtimedwait({signal.SIGINT}, timeout) is None:
+        raise TimeoutError
+
+
+def main() -> None:
+    """Run `finray_jax.cli.main` with SIGINT handled as the module docstring says."""
+    if threading.current_thread() is threading.main_thread() and hasattr(signal, "sigwait"):
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        threading.Thread(target=_watch, name="finray-sigint", daemon=True).start()
+    try:
+        from finray_jax.cli import main as cli_main
+
+        code = cli_main()
+    except KeyboardInterrupt:  # (during the imports, or let through by a command)
+        _finished.set()
+        print(LINE, file=sys.stderr)
+        _leave(EXIT_INTERRUPTED)
+    if _interrupted.is_set():  # the command stopped cleanly and said so
+        _finished.set()
+        _leave(EXIT_INTERRUPTED)
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    main()
