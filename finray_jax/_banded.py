@@ -208,10 +208,9 @@ def _panel_elementwise(W, nb: int):
     selection (the arithmetic of LAPACK's unblocked getf2).
 
     On a GPU, jax factorises a vmapped batch of non-square matrices one matrix after
-    another (a cuSOLVER call each): a batch of ref-A designs ran at 720 designs/s on an
-    H100, and at 44,670 with this, a few fused kernels for the whole batch. On a CPU,
-    LAPACK's panel is about 4x faster than this (benchmarks/README.md, session 18), so
-    `_panel` picks by platform.
+    another (a cuSOLVER call each); this is a few fused kernels for the whole batch. On a
+    CPU, LAPACK's panel is faster than this, so `_panel` picks by platform (the
+    figures for both: benchmarks/README.md).
     """
     h = W.shape[0]
     rows = jnp.arange(h)

@@ -6,8 +6,8 @@ import os
 def enable_compilation_cache() -> str | None:
     """Turn on JAX's persistent compilation cache, so that a later process solving a
     finger of the same topology loads the compiled programs instead of compiling them
-    (a planar ref-A solve's first call: 4.1 s without the cache, 1.2 s with it, on the
-    development machine).
+    (benchmarks/README.md gives a new process's first solve with the cache empty and
+    filled).
 
     Every `finray` command (but validate) calls it; the library never does by itself.
     Call it at the top of a script or notebook to share the CLI's cache. Directory:

@@ -47,9 +47,9 @@ class FoldOptions(eqx.Module):
         converged when its step in eta is below step_tol, or when that step is below
         stall_tol and dlam/deta is below slope_tol (zero to rounding: the secant's steps
         are then noise).
-    slope_tol: see step_tol. Measured on ref-A L3 with the back clamp at 8 mm: refined
-        folds have |dlam/deta| of 1e-17 to 7e-16; run on two threads, 2 of 20 perturbed
-        folds kept stepping at that level past 20 secant steps.
+    slope_tol: see step_tol. On ref-A L3 with the back clamp at 8 mm, refined folds have
+        |dlam/deta| of 1e-17 to 7e-16, and rounding can keep the secant stepping at that
+        level without its step in eta falling below step_tol.
     residual_tol: the refined fold is accepted when its largest scaled residual is below.
     """
 

@@ -96,7 +96,8 @@ def thickness_at(section, s, length):
 def main_beam_samples(finger, n: int):
     """The undeformed main beams at n evenly spaced arc lengths each, for eager checks:
     arc lengths (2, n), centreline points (x, z) (2, n, 2) and half thicknesses (2, n),
-    front beam first. (Jitted: eagerly, the few dozen small operations cost ~10 ms.)"""
+    front beam first. (Jitted: run eagerly, its few dozen small operations would each be
+    dispatched on their own.)"""
     geo = geometry(finger)
     out = []
     for b, sec in ((0, finger.front), (1, finger.back)):

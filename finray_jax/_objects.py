@@ -42,8 +42,8 @@ def _safe_rsqrt(sq):
 
 def rsqrt(x):
     """1 / sqrt(x) as sqrt(x) / x. XLA's CPU backend does not vectorise its float64
-    rsqrt (4.3 ns an element against 1.1 ns for a square root and a division, measured
-    on this project's machine), and rewrites 1 / sqrt(x) into it."""
+    rsqrt, which makes it several times slower than a square root and a division, and
+    rewrites 1 / sqrt(x) into it."""
     return jnp.sqrt(x) / x
 
 
@@ -196,7 +196,7 @@ class Ellipse(AbstractObject):
         #   normal from the closest point meets the major axis between the centre and
         #   X), from the lower bound: this is exact on the axes and at the centre.
         # The search is not differentiated (its derivative, through steps that branch,
-        # made XLA's reverse pass about 1000x slower); one more Newton step after it
+        # makes XLA's reverse pass orders of magnitude slower); one more Newton step after it
         # carries the derivative of the root (the implicit function theorem).
         sg = jax.lax.stop_gradient
         args = (sg(e2), sg(big), sg(small), sg(X), sg(Z))

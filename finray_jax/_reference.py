@@ -1,4 +1,5 @@
-"""The shared reference finger ref-A (../shared/reference/ref_finger_A.md)."""
+"""The reference finger ref-A and its load cases, defined here (the same finger under L1
+as a finger file: examples/ref_a.toml)."""
 
 import numpy as np
 

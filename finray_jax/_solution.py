@@ -92,9 +92,9 @@ class BeamSolution(eqx.Module):
     Stored packed, one row of 19 values per point (`data`: s, position, frame row by row,
     force, moment; leading axes for stacked crossbeams or a batch), and read through the
     properties. A compiled solve returns each array of its result as its own buffer, and
-    that costs: a jitted function returning 32 small arrays took 0.12 ms, one returning
-    8 arrays 0.02 ms (measured on the 2-core test machine). With five arrays per beam and
-    the reactions, tip and crossbeam wrenches apart a Solution had 31; it now has 9.
+    each costs dispatch time: a few packed arrays (9) come back several times faster
+    than five arrays per beam with the reactions, tip and crossbeam wrenches apart (31)
+    would (benchmarks/README.md, "Dispatch").
     """
 
     data: jax.Array

@@ -79,7 +79,7 @@ def _start(problem, init):
 
 # The cores are jitted with jax.jit, their first three arguments (topology, integrator,
 # options) static: its C++ dispatch flattens the finger and builds the Solution several
-# times faster than eqx.filter_jit (~0.1 ms against ~0.4 ms per call, measured).
+# times faster than eqx.filter_jit, whose per-call overhead is large for a call this small.
 _core_jit = functools.partial(jax.jit, static_argnums=(0, 1, 2))
 
 
@@ -142,16 +142,14 @@ def start_from_deformation(topo, finger: Finger, deformation):
     on another finger of the same topology): every segment's undeformed start state plus
     the other finger's displacement, rotation and internal wrench per unit E at its own
     segment start. For a changed design this is a better Newton start than the other
-    finger's unknowns themselves, which also carry its undeformed geometry: on ref-A L1
-    with attachments moved by up to 1 mm, 3.25 Newton iterations on average against 4.2
-    (and 4.0 from the undeformed shape).
+    finger's unknowns themselves, which also carry its undeformed geometry (a crossbeam
+    moved by 1 mm puts that start 1 mm off).
 
-    Forces travel per unit E: for a change of E alone the start is then the old
-    equilibrium at loads scaled by the ratio of the moduli, an equilibrium of the new
-    design (in physical units L2 at E x 0.97 took 58 iterations, its direct Newton
-    failing, against 6); a change of a thickness keeps the forces (in scaled unknowns,
-    whose forces are in units of EI_front / L^2, L2 at front thickness x 1.01 took 60
-    against 4)."""
+    Forces travel per unit E: for a change of E alone the start is then the other
+    finger's equilibrium at loads scaled by the ratio of the moduli, an equilibrium of
+    this design (forces carried in newtons would not be); a change of a thickness keeps
+    the forces (carried as scaled unknowns, in units of EI_front / L^2, they would
+    change with the front beam's thickness). Iteration counts: benchmarks/README.md."""
     problem = make_problem(topo, None, finger)
     return (problem.undeformed() + deformation / _carry_scale(problem)).reshape(-1)
 

@@ -212,8 +212,7 @@ def _growth(iterations: int) -> float:
     """Factor on the next path step after a solve that took `iterations` Newton
     iterations: grow after easy solves, shrink after hard ones (the next, equally long
     step would likely fail and cost a full max_newton_steps). On the Finger-1 grasps of
-    benchmarks/grasp.py these factors take 7 and 10 solves, with no failed step, where
-    1.5x after <= 6 iterations, else 1x, takes 11 and 13."""
+    benchmarks/grasp.py these factors take 7 and 10 solves, with no failed step."""
     if iterations <= 3:
         return 2.0
     if iterations <= 6:

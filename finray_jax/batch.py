@@ -107,14 +107,14 @@ _traces = 0  # how often a chunk program was traced (a test checks values never 
 def _vectorize(stage, mesh, platform: str, requested: bool | None) -> bool:
     """vmap the designs of a chunk (True), or `lax.map` over them one after another.
 
-    Default (requested None): vmap on accelerators, map on CPU, where a vmapped chunk was
-    measured about 2x slower per design than one design after another
-    (benchmarks/batch.py). Map is also forced where vmap can hang on CPU: jaxlib 0.10's
+    Default (requested None): vmap on accelerators, map on CPU, where a vmapped chunk is
+    slower per design than one design after another (benchmarks/README.md, `batch.py`).
+    Map is also forced where vmap can hang on CPU: jaxlib 0.10's
     CPU LAPACK kernels split a batched factorisation over the intra-op thread pool and
     block until the pieces are done, so two of them at once (both branches of the vmapped
     `lax.cond` of the continuation stage, or one per device when several CPU devices
-    share the pool) can hold every pool thread. Observed on the 2-core test machine:
-    stacks parked in `jax::ParallelBatchMap`. The direct Newton stage factorises one
+    share the pool) can hold every pool thread (the hung stacks wait in
+    `jax::ParallelBatchMap`). The direct Newton stage factorises one
     matrix at a time and may be vmapped on one CPU device.
     """
     if platform != "cpu":
@@ -166,9 +166,8 @@ def _init_deformation(init, topo):
             f"init is a {init.mode} solution with {y.size} unknowns; the batch's topology is "
             f"{topo.mode} with {n}: pass a Solution of the base finger in the batch's mode"
         )
-    # (Not its Jacobian's factors, `Solution.jacobian`: chord steps on them from every
-    # design's start were slower on ref-A L1's perturbed designs, 1,065-1,077 designs/s
-    # against 1,126-1,156 (benchmarks/README.md, session 25).)
+    # (Not its Jacobian's factors, `Solution.jacobian`: a batch's designs lie too far from
+    # the base for chord steps on them to pay (benchmarks/README.md, `batch.py`).)
     return jnp.asarray(init.deformation)
 
 
@@ -199,8 +198,8 @@ def _placement(devices):
 
 # The chunk size by platform when none is given: a CPU maps the designs one after
 # another, so a chunk only bounds memory and the loss of an interrupted sweep; an
-# accelerator vmaps them, and on an H100 chunks of 4,096 planar ref-A designs ran at
-# 44,670 designs/s against 35,509 for chunks of 1,024 (benchmarks/README.md, session 18).
+# accelerator vmaps them, and a larger chunk keeps it busier: 4,096 designs gives the best
+# throughput among the chunk sizes in benchmarks/README.md (`batch_gpu.py`).
 def default_chunk_size(platform: str) -> int:
     return 256 if platform == "cpu" else 4096
 

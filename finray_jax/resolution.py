@@ -258,8 +258,8 @@ def check_grasp_resolution(
     The estimate assumes order 2, not the method's. The penalty law is C1 (its second
     derivative jumps where contact starts and where the smoothing zone ends), so a step
     across such a point is less accurate, by an amount that depends on where the point
-    falls in the step (a C2 law converged no faster: docs/grasping.md). Measured on
-    Finger-1 (examples/grasp_finger1.toml, closing 5 mm, Tsit5): the normal force changes
+    falls in the step (a C2 law converges no faster: docs/grasping.md). On Finger-1
+    (examples/grasp_finger1.toml, closing 5 mm, Tsit5) the normal force changes
     by 3.0e-5, 9.3e-6 and 1.8e-6 N from 16 to 32, 64 and 128 steps (order 1.7, then 2.4),
     while the tip's changes (3.0e-6, 3.7e-6, 4.9e-7 mm) show no steady order."""
     if not isinstance(g, GraspSolution):
