@@ -1,4 +1,4 @@
-"""Batch throughput and gradient cost (issue 4: differentiable design).
+"""Batch throughput and gradient cost of differentiable design.
 
 Pinned to one core. Designs are small random perturbations of ref-A under L1: the back
 clamp length in [0, 5] mm and the attachment arc lengths of crossbeams 0-2 and 4-6 on both
@@ -10,7 +10,7 @@ each design started from the undeformed shape (cold) and, for batches above 1, f
 base finger's solution (`solve_batch(..., init=...)`, warm),
 it records the compile time (first call, apart) and the median wall time of
 `solve_batch` end to end (checks, padding, transfer, solve, outputs; the base finger's
-topology is built and validated once, outside: that eager check alone costs ~30 ms), as
+topology is built and validated once, outside, an eager cost of its own), as
 designs/s. For comparison, in the same process: a Python loop of single jitted direct
 solves.
 

@@ -1,4 +1,4 @@
-"""Batch throughput on a GPU (issue 4): planar ref-A L1 designs, vmapped per chunk.
+"""Batch throughput on a GPU: planar ref-A L1 designs, vmapped per chunk.
 
 The designs are those of benchmarks/batch.py (random perturbations of ref-A under L1: back
 clamp length in [0, 5] mm, attachment arc lengths of crossbeams 0-2 and 4-6 by up to

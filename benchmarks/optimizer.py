@@ -1,4 +1,4 @@
-"""The gradient optimiser against black-box baselines (issue: design optimisation, item 5).
+"""The gradient optimiser against black-box baselines.
 
 The same problem for every method: examples/optimize_clamp.toml (Finger-1, modified
 adaptor, 18 mm cylinder, contact force over the clamp length l_c and the support length

@@ -1,4 +1,4 @@
-"""ref-A side by side with the tools a user would pick instead (issue 5).
+"""ref-A side by side with the tools a user would pick instead.
 
 Solves the shared ref-A cases L1, L2, L3 with
   * finray_jax, planar and 3-D, cold (from the undeformed guess) and warm (init = the

@@ -1,5 +1,5 @@
 """Record the solver's answers, or compare them with a recording: the check that a
-restructuring of the solver changed no number.
+restructuring of the solver changes no number.
 
     python benchmarks/same_answers.py record OUT.json   # on the reference commit
     python benchmarks/same_answers.py compare OUT.json  # on the commit under test

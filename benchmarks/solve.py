@@ -1,4 +1,4 @@
-"""Solve-time benchmark of ref-A (issue: core performance targets).
+"""Solve-time benchmark of ref-A.
 
 Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   compile time (first call, lowering + XLA compile, reported apart) of the full traced
@@ -9,7 +9,7 @@ Pinned to one core. For L1, L2, L3 in planar and 3-D mode it records:
   warm re-solve after a 1 % change of the back-beam thickness, starting from the previous
   solution as `solve_finger(init=)` does (its unknowns and the factors of its Jacobian
   that an eager solve keeps), median of repeats, with the start from the unknowns alone
-  beside it (the warm start before session 25); and after a 1 % change of the front-beam
+  beside it (a warm start without the factors); and after a 1 % change of the front-beam
   thickness, started from the previous solution's carried deformation as
   `solve_finger(init=)` starts it (the iterations from its scaled unknowns beside it).
 Baselines timed in the same run for L1, so figures from noisy machines can be compared:
@@ -63,7 +63,7 @@ def bench_case(case, mode, integrator=fr.Integrator(), repeats=15, opts=fr.Solve
         ),
         repeats,
     )
-    # Baseline in the same run: the start from the unknowns alone (before session 25).
+    # Baseline in the same run: the start from the unknowns alone, without the factors.
     plain_sol = _solve.solve_core(topo, integrator, opts, thicker, sol.unknowns)
     plain, _ = median_time(
         lambda: jax.block_until_ready(

@@ -1,4 +1,4 @@
-"""A sweep of 10,000 designs on this machine (issue 4): `examples/sweep_random_10k.toml`
+"""A sweep of 10,000 designs on this machine: `examples/sweep_random_10k.toml`
 (ref-A L1, planar; 5 design values drawn at random) run through `finray_jax.sweep`, the
 same code as `finray sweep`, pinned to one core. Reports the wall time with and without
 the first chunk (which compiles), designs per second, and the status counts; a plain
