@@ -175,8 +175,8 @@ def test_elementwise_panel_matches_lapack(name):
 
 
 def test_factor_picks_lapack_on_cpu(monkeypatch):
-    """On the CPU the factorisation calls LAPACK (the element-wise step is about 4x slower
-    there): a factor traced with the element-wise step poisoned still gives the right
+    """On the CPU the factorisation calls LAPACK (the element-wise step is slower there):
+    a factor traced with the element-wise step poisoned still gives the right
     answer on the CPU backend."""
     if jax.default_backend() != "cpu":
         pytest.skip(f"checks the CPU's choice; the default backend is {jax.default_backend()}")

@@ -308,8 +308,8 @@ ADAPTOR_REFUSED = {
 @pytest.mark.parametrize("name", list(REFUSED) + list(ADAPTOR_REFUSED))
 def test_design_valid_refuses_what_validate_finger_refuses(name):
     """Each finger breaks one geometry rule (REFUSED) or adaptor rule (ADAPTOR_REFUSED) and
-    nothing else that design_valid checked before it held them: a batch, sweep or
-    optimiser step of it was solved as if valid."""
+    nothing else; design_valid refuses it too, or a batch, sweep or optimiser step of it
+    would be solved as if valid."""
     finger, base, words = {**REFUSED, **ADAPTOR_REFUSED}[name]
     msg = _refusal(finger)
     assert msg is not None and words in msg, msg

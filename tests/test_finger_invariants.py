@@ -729,7 +729,7 @@ def test_curvature_rules():
 def test_large_loads_are_solved_by_direct_newton(case, request):
     """With the rotation cap (default 0.2 rad per Newton step), L2 and L3 converge by
     Newton from the undeformed shape (at most max_newton_steps iterations: no continuation
-    was needed); that they are the right equilibria is checked against openseespy in
+    is needed); that they are the right equilibria is checked against openseespy in
     test_reference_opensees.py."""
     sol = request.getfixturevalue(CASES[case])
     assert sol.result == fr.RESULTS.successful

@@ -117,12 +117,12 @@ def _fd(f, x0, e, levels):
     grown past twice the least (the steps have entered the solve's noise). It balances
     truncation, which grows with the step, against solve noise, which grows as it
     shrinks. (Chosen over all the estimates at once, the smallest steps' pair could win by
-    chance: on ref-A L2 tip.dx / angle[6] R(h) and R(2 h) agreed to 3e-11 while both were
-    off by ~1e-5, and failed the test.) Measured on ref-A
+    chance: on ref-A L2 tip.dx / angle[6] R(h) and R(2 h) agree to 3e-11 while both are
+    off by ~1e-5, which fails the test.) Measured on ref-A
     L2: tip.dx / angle[6] (-1.03e-5 mm/rad, ~1e-6 of the largest in its row) is 1e-14 mm
     of round-off in tip.dx (~5e-16 relative) away from the implicit derivative at each
     solve, which over 2 h = 2e-3 rad is 5e-6 relative: Richardson estimates from steps of
-    1e-3 rad or less were off by 2.8e-6 to 8.5e-6 (they moved with the warm start), those
+    1e-3 rad or less are off by 2.8e-6 to 8.5e-6 (they move with the warm start), those
     from 4e-3 to 16e-3 rad by 2.8e-7 to 1.1e-6. angle[0] needs the small steps (its
     truncation is larger). Returns (h times the estimate, where): the max-strain locations
     of the solves at h and h / 2."""
@@ -278,9 +278,9 @@ def test_zero_length_segment_has_no_rigid_part_in_its_derivative():
 @pytest.mark.slow
 def test_finger1_ties_match_one_sided_fd(finger1_derivs):
     """At a tie the derivative is the one-sided one on the topology-keeping side. (The
-    zero-length segment between the tied events has no rigid part on either side; when
-    the rigid part was jnp.clip(..., 0, length), the tie of its min passed half of
-    d(length) into it, and jacfwd was off by up to 70x relative here.)"""
+    zero-length segment between the tied events has no rigid part on either side: a
+    rigid part written as jnp.clip(..., 0, length) would pass half of d(length) into it
+    through the tie of its min, and jacfwd would be far off here.)"""
     d = finger1_derivs
     idx = [LABELS.index(n) for n in d["one_sided"]]
     err = _rel(d["jac"][:, idx], d["fd"][:, idx])

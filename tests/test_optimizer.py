@@ -202,7 +202,7 @@ _EVERY = "; every value in [lo, hi] must give a valid finger"
 )
 def test_bounds_that_allow_an_invalid_finger_are_refused(tmp_path, name, bounds, message):
     """Every value between the bounds must make a valid finger: checked at both ends
-    when the file is read (a thickness in [-3, 3] was accepted)."""
+    when the file is read (a thickness in [-3, 3] is refused)."""
     with pytest.raises(O.OptimizeError) as e:
         _load(_one_design(name, bounds), tmp_path)
     msg = str(e.value)

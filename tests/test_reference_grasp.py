@@ -204,7 +204,7 @@ CASES = {  # case: (example file, contact.max_penetration)
 }
 CLOSINGS = (2.0, 4.0, 6.0)
 K_REL = 1e-4  # the default grasp's penalty stiffnesses against the stored ones
-REL = 0.01  # the 1 %
+REL = 0.01  # 1 % (see the module docstring)
 FLOOR = 1e-3  # of the quantity's scale (see the module docstring)
 MESH = 3.0  # x the reference's Richardson mesh-error estimate
 

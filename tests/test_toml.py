@@ -677,7 +677,7 @@ def test_round_trip_everything():
 
 def test_rotation_cap_switched_off_round_trips():
     """SolverOptions(max_rotation_step=None) (no cap) is written `false` and read back as
-    None; before, it was left out and came back as the default cap, 0.2 rad."""
+    None (left out, it would come back as the default cap, 0.2 rad)."""
     settings = fio.SolveSettings(options=fr.SolverOptions(max_rotation_step=None))
     text = fio.finger_to_toml(fr.ref_finger_a("L1"), settings)
     assert "max_rotation_step = false" in text
