@@ -62,6 +62,35 @@ def arc_step(s: ArcState, on=True):
     return Arc(on, s.y, s.lam, s.t, ds, s.w), s.y + ds * s.t[:-1] / s.w, s.lam + ds * s.t[-1]
 
 
+def _why_rejected(outside, ok, same, rising):
+    """The result a rejected step reports: contact outside the near segments, a corrector
+    that did not converge, det J changing sign while the load rose, or the turn tests."""
+    return RESULTS.where(
+        outside,
+        RESULTS.contact_outside_near_segments,
+        RESULTS.where(
+            ~ok,
+            RESULTS.continuation_corrector_failed,
+            RESULTS.where(
+                ~same & rising, RESULTS.continuation_branch_switch, RESULTS.continuation_failed
+            ),
+        ),
+    )
+
+
+def _next_step(s: ArcState, accept, first, nit, unit, opts: SolverOptions):
+    """The next arc step's length: grown by 1.6 (up to max_arc_step) after an easy step
+    away from a fold, kept after a hard one, halved after a rejected one; the first pass
+    scales the initial step to the path's unit."""
+    grow = accept & (nit <= 4) & ~s.near_fold & ~first
+    ds_new = jnp.where(
+        accept,
+        jnp.where(grow, jnp.minimum(1.6 * s.ds, unit * opts.max_arc_step), s.ds),
+        0.5 * s.ds,
+    )
+    return jnp.where(first, unit * s.ds, ds_new)
+
+
 def arc_advance(s: ArcState, c: NewtonState, target, opts: SolverOptions) -> ArcState:
     """The path's state after a corrector `c` (a bordered `solve_root` from the
     predictor of `arc_step(s)`): accept the point, or halve the step.
@@ -114,25 +143,9 @@ def arc_advance(s: ArcState, c: NewtonState, target, opts: SolverOptions) -> Arc
     corner = on_branch & few & (s.turned > 0.0) & (turn >= 0.75 * s.turned)
     accept = ok & (first | (smooth & same & rising) | corner)
     turned = jnp.where(on_branch & ~smooth & ~accept, turn, 0.0)
-    why = RESULTS.where(
-        c.outside,
-        RESULTS.contact_outside_near_segments,
-        RESULTS.where(
-            ~ok,
-            RESULTS.continuation_corrector_failed,
-            RESULTS.where(
-                ~same & rising, RESULTS.continuation_branch_switch, RESULTS.continuation_failed
-            ),
-        ),
-    )
+    why = _why_rejected(c.outside, ok, same, rising)
     reached = accept & (lam1 >= target) & ~first
-    grow = accept & (nit <= 4) & ~s.near_fold & ~first
-    ds_new = jnp.where(
-        accept,
-        jnp.where(grow, jnp.minimum(1.6 * s.ds, unit * opts.max_arc_step), s.ds),
-        0.5 * s.ds,
-    )
-    ds_new = jnp.where(first, unit * s.ds, ds_new)
+    ds_new = _next_step(s, accept, first, nit, unit, opts)
     near_fold = s.near_fold | folded
     tiny = ds_new < unit * opts.min_arc_step
     keep = accept & ~reached

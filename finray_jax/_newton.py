@@ -314,6 +314,29 @@ class ShootingNewton(optx.AbstractRootFinder):
         outside = st.outside | (missed & ~again)  # (and give up)
         return order, again, outside, conv & ~missed
 
+    def _converged(self, st: NewtonState, tr, dy, y, start):
+        """Whether the step dy (taken from the trial point to y) ends the solve; its size
+        in units of the tolerance, its ratio to the previous step's, its largest change."""
+        o = self.options
+        # Newton's own correction (before any line search or cap) in units of the
+        # tolerance, norm-wise: below a tenth, y_t is the root to within round-off, even
+        # where the residual sits on a round-off floor above atol (stiff contact
+        # penalties), and y_t - dy is closer still (by the step squared). Norm-wise, as
+        # the unknowns are scaled to order one: per component, an unknown near zero would
+        # need its round-off below atol, which a tight atol (1e-17) never reaches.
+        full = jnp.max(jnp.abs(tr.dy)) / (o.atol + o.rtol * jnp.max(jnp.abs(tr.y)))
+        step = jnp.max(jnp.abs(dy) / (o.atol + o.rtol * jnp.abs(y)))
+        biggest = jnp.max(jnp.abs(dy))
+        near = biggest < 1e-4
+        conv = (step < 1.0) & (jnp.max(jnp.abs(tr.r)) < o.atol)
+        ratio = step / jnp.maximum(st.step, 1e-300)
+        # Newton's quadratic regime: the next step would be step^3 / previous^2. A chord
+        # step contracts linearly (by `ratio`): what is left is step ratio / (1 - ratio).
+        quadratic = (~start) & (ratio < 1e-2) & (step * ratio**2 < 0.1) & near & ~st.reuse
+        linear = st.reuse & ~start & (ratio < 0.5) & (step * ratio / (1.0 - ratio) < 0.1)
+        linear = linear & near
+        return conv | (full < 0.1) | quadratic | linear, step, ratio, biggest
+
     def _iteration(self, args, st: NewtonState) -> NewtonState:
         problem, lam = args
         o, contact, bordered = self.options, self._contact(problem), self._bordered()
@@ -321,13 +344,6 @@ class ShootingNewton(optx.AbstractRootFinder):
         tr = self._trial(problem, lam, st)
         r, dy = tr.r, tr.dy
         norm = jnp.sum(r * r)
-        # Newton's own correction (before any line search or cap) in units of the
-        # tolerance, norm-wise: below a tenth, y_t is the root to within round-off, even
-        # where the residual sits on a round-off floor above atol (stiff contact
-        # penalties), and y_t - dy is closer still (by the step squared). Norm-wise, as
-        # the unknowns are scaled to order one: per component, an unknown near zero would
-        # need its round-off below atol, which a tight atol (1e-17) never reaches.
-        full = jnp.max(jnp.abs(dy)) / (o.atol + o.rtol * jnp.max(jnp.abs(tr.y)))
         first = st.k == 0
         start = first | st.restart
         decreased = norm <= (1.0 - 1e-4 * st.a) * st.norm
@@ -348,17 +364,8 @@ class ShootingNewton(optx.AbstractRootFinder):
             dy, r_next = backtrack(self._at(problem, st), tr.lam, tr.y, dy, r, halvings)
         y = tr.y - dy
         finite = jnp.all(jnp.isfinite(y))
-        step = jnp.max(jnp.abs(dy) / (o.atol + o.rtol * jnp.abs(y)))
-        biggest = jnp.max(jnp.abs(dy))
-        near = biggest < 1e-4
-        conv = (step < 1.0) & (jnp.max(jnp.abs(r)) < o.atol)
-        ratio = step / jnp.maximum(st.step, 1e-300)
-        # Newton's quadratic regime: the next step would be step^3 / previous^2. A chord
-        # step contracts linearly (by `ratio`): what is left is step ratio / (1 - ratio).
-        quadratic = (~start) & (ratio < 1e-2) & (step * ratio**2 < 0.1) & near & ~st.reuse
-        linear = st.reuse & ~start & (ratio < 0.5) & (step * ratio / (1.0 - ratio) < 0.1)
-        linear = linear & near
-        conv_newton = accept & (conv | (full < 0.1) | quadratic | linear)
+        conv_newton, step, ratio, biggest = self._converged(st, tr, dy, y, start)
+        conv_newton = accept & conv_newton
         if bordered:
             lam_new = tr.lam - dlam
             conv = select(on, conv_arc, conv_newton)
