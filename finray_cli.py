@@ -2,16 +2,18 @@
 with exit status 130 and one line.
 
 This module imports nothing heavy before it takes charge of SIGINT, so an interrupt
-during the (seconds long) import of jax is handled too. SIGINT is blocked in every
+during the (seconds long) import of jax is handled too: it ends the process at once
+(nothing has been done yet, and an import interrupted halfway may print its own
+traceback). SIGINT is blocked in every
 thread (the mask is inherited by the threads jax and XLA start later) and waited for by
 one thread of its own, which sees it at once even while the main thread sits in a long
 XLA compilation. On the first Ctrl-C that thread raises KeyboardInterrupt in the main
 thread, where the command stops, says what it kept (a sweep's finished rows, an
-optimisation's record) and returns 130. If the main thread does not get that far within
-GRACE seconds (the interrupt landed where Python ignores exceptions, such as a garbage
-collection callback, or inside native code that runs on), or on a second Ctrl-C, the
-process ends with 130 right away; everything a command keeps on disk is written
-atomically, so it loses only unfinished work.
+optimisation's record) and returns 130. Where the interrupt lands in code that cannot
+raise it (a garbage-collection callback: Python would print "Exception ignored" and run
+on), the process ends at once; where the main thread does not stop within GRACE seconds
+(native code that runs on), or on a second Ctrl-C, likewise. Everything a command keeps
+on disk is written atomically, so it loses only unfinished work.
 
 The process always leaves through `os._exit` after an interrupt: a normal interpreter
 shutdown with XLA's threads mid-flight can crash in their destructors.
@@ -29,6 +31,7 @@ LINE = "finray: interrupted"
 
 _interrupted = threading.Event()
 _finished = threading.Event()
+_importing = threading.Event()
 
 
 def _leave(code: int) -> None:
@@ -44,6 +47,9 @@ def _watch() -> None:
     """Wait for SIGINT; interrupt the main thread, then make sure the process ends."""
     signal.sigwait({signal.SIGINT})
     _interrupted.set()
+    if _importing.is_set():  # nothing done yet: no need to stop cleanly
+        print(LINE, file=sys.stderr)
+        _leave(EXIT_INTERRUPTED)
     _thread.interrupt_main()
     try:
         _wait_for_second_interrupt(GRACE)
@@ -60,16 +66,34 @@ def _wait_for_second_interrupt(timeout: float) -> None:
         raise TimeoutError
 
 
+def _unraisable(hook_args) -> None:
+    """An interrupt that landed where Python cannot raise it (a garbage-collection
+    callback, a destructor) ends the process at once, with the one line; any other
+    unraisable exception is shown as Python shows it."""
+    if issubclass(hook_args.exc_type, KeyboardInterrupt):
+        _finished.set()
+        print(LINE, file=sys.stderr)
+        _leave(EXIT_INTERRUPTED)
+    sys.__unraisablehook__(hook_args)
+
+
 def main() -> None:
     """Run `finray_jax.cli.main` with SIGINT handled as the module docstring says."""
     if threading.current_thread() is threading.main_thread() and hasattr(signal, "sigwait"):
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         threading.Thread(target=_watch, name="finray-sigint", daemon=True).start()
+        sys.unraisablehook = _unraisable
     try:
+        _importing.set()
         from finray_jax.cli import main as cli_main
 
+        _importing.clear()
         code = cli_main()
-    except KeyboardInterrupt:  # (during the imports, or let through by a command)
+    except BaseException:
+        # An interrupt during the imports, or let through by a command; native modules
+        # may turn it into another exception (jaxlib's extension reports an ImportError).
+        if not _interrupted.is_set():
+            raise
         _finished.set()
         print(LINE, file=sys.stderr)
         _leave(EXIT_INTERRUPTED)

@@ -166,6 +166,7 @@ def _cmd_demo(args) -> int:
         "\nGrasping an 18 mm cylinder: original vs modified adaptor (front base pinned, "
         "back beam clamped over 20 mm, rigid support to 60 mm), same closing of 6 mm"
     )
+    compiling("contact solver", "for the two adaptors' grasps")
     cmp = studies.compare_adaptors(finger, closing=6.0, release_diameters=(), progress=progress)
     print("\n".join(_comparison_lines(cmp)))
     grasp_png = os.path.join(out, "demo_grasp.png")
@@ -229,9 +230,8 @@ def _main(argv) -> int:
             return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USER
         set_quiet(args.quiet)
         _check_output_paths(args)
-        if args.command != "validate":
-            enable_compilation_cache()
-            choose_device(args.command)
+        enable_compilation_cache()
+        choose_device(args.command)
         return COMMANDS[args.command](args)
     except fr.FingerError as e:  # (the finger file's, when a command reads one)
         print(f"finray: error: {_in_file(getattr(args, 'finger', None), e)}", file=sys.stderr)
