@@ -160,3 +160,30 @@ def test_private_name_finder_sees_both_forms():
     modules = {"m": None, "_a": None, "_b": None, "_c": None}
     uses = {(t, n) for t, n, _ in _private_uses("m", tree, modules)}
     assert uses == {("_a", "_x"), ("_b", "_z"), ("_c", "_w")}
+
+
+# One concern per file, and functions a reader takes in at once: a module over this many
+# lines holds more than one thing, a function over this many does several steps that want
+# names of their own.
+MAX_MODULE_LINES = 500
+MAX_FUNCTION_LINES = 85
+
+
+def test_no_module_is_longer_than_a_concern():
+    long = {
+        p.name: n
+        for p in sorted(PACKAGE.glob("*.py"))
+        if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES
+    }
+    assert not long, long
+
+
+def test_no_function_is_longer_than_a_few_steps():
+    long = {}
+    for name, tree in _modules().items():
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long[f"{name}.{node.name}"] = n
+    assert not long, long
