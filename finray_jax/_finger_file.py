@@ -277,10 +277,18 @@ def _read_pattern(value, r: TomlReader, front_base, back_base, tip) -> Crossbeam
         raise r.error(
             f"{p}.back_s", "give either horizontal = true or back_s, not both", tbl["back_s"]
         )
+    fb, bb, tp = (np.asarray(x, dtype=np.float64) for x in (front_base, back_base, tip))
+    lf, lb = np.linalg.norm(tp - fb), np.linalg.norm(tp - bb)
+    if lf == 0:  # (a pattern is placed along both beams: each needs a length)
+        raise r.error(
+            "front.tip", "equals front.base: the front beam has zero length", [float(x) for x in tp]
+        )
+    if lb == 0:
+        raise r.error(
+            "back.base", "equals front.tip: the back beam has zero length", [float(x) for x in bb]
+        )
     if horizontal:
-        fb, bb, tp = (np.asarray(x, dtype=np.float64) for x in (front_base, back_base, tip))
-        lf, lb = np.linalg.norm(tp - fb), np.linalg.norm(tp - bb)
-        if lf == 0 or abs(tp[1] - bb[1]) < 1e-12 * max(lb, 1.0):
+        if abs(tp[1] - bb[1]) < 1e-12 * max(lb, 1.0):
             raise r.error(
                 f"{p}.horizontal",
                 "needs a back beam that rises in z (back.base and front.tip differ in z)",

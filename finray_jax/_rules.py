@@ -296,6 +296,37 @@ def _cross_message(v, i):
     )
 
 
+def _footprints(c, beam: int, name: str):
+    """Crossbeams' half widths along main beam `beam` where they meet it: half the
+    thickness over the sine of the angle between crossbeam and beam."""
+    cb, geo = c.finger.crossbeams, c.geo
+    s = getattr(cb, f"{name}_s")
+    along = geo.theta[beam] + geo.curvature[beam] * s  # the main beam's tangent angle
+    sine = jnp.abs(jnp.sin(geo.theta[2:] - along))
+    return s, 0.5 * cb.thickness / jnp.maximum(sine, 1e-12)
+
+
+def _apart_at(beam: int, name: str) -> Rule:
+    """Neighbouring crossbeams' footprints on a main beam neither overlap nor touch."""
+
+    def check(c):
+        s, half = _footprints(c, beam, name)
+        need = half[:-1] + half[1:]
+        values = {"s": s, "need": need, "t": c.finger.crossbeams.thickness}
+        return Check(jnp.abs(jnp.diff(s)) > need, values)
+
+    def message(v, i):
+        return (
+            f"crossbeams {i} and {i + 1} overlap where they meet the {name} beam: "
+            f"{name}_s {v.s[i]} -> {v.s[i + 1]} is {abs(v.s[i + 1] - v.s[i]):.4g} mm apart, "
+            f"their thicknesses ({v.t[i]:.4g} and {v.t[i + 1]:.4g} mm, crossbeams[{i}]."
+            f"thickness and crossbeams[{i + 1}].thickness) need more than {v.need[i]:.4g} "
+            "mm along that beam"
+        )
+
+    return Rule(check, message)
+
+
 def _base_to_tip(c):
     df, _, values = _steps(c)
     return Check(df >= 0, values)
@@ -332,6 +363,8 @@ CROSSBEAM_RULES = (
     _inside(BACK, "back"),
     Rule(_not_crossing, _cross_message),
     Rule(_base_to_tip, _order_message),
+    _apart_at(FRONT, "front"),
+    _apart_at(BACK, "back"),
     Rule(_long_enough, _length_message, geometry=True),
 )
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 import time
 import warnings
 
@@ -102,6 +103,25 @@ def _check_output_paths(args) -> None:
             raise UserError(f"{option} {path}: {folder} is a file, not a directory")
         if os.path.isdir(path):
             raise UserError(f"{option} {path}: is a directory, not a file name")
+        _check_writable(option, path, folder)
+    if out and args.command in _DIRECTORY_OUTPUTS:
+        _check_writable("--out", out, out)
+
+
+def _check_writable(option: str, path: str, folder: str) -> None:
+    """Refuse an output whose folder (or, where it does not exist yet, the nearest folder
+    above it, where it would be created) cannot take a new file: a file is made there and
+    removed (permission bits alone do not say, e.g. for root or a read-only mount)."""
+    where = os.path.abspath(folder)
+    while not os.path.exists(where):
+        where = os.path.dirname(where)
+    if not os.path.isdir(where):
+        raise UserError(f"{option} {path}: {where} is a file, not a directory")
+    try:
+        with tempfile.TemporaryFile(dir=where):
+            pass
+    except OSError as e:
+        raise UserError(f"{option} {path}: cannot write in {where} ({e.strerror or e})") from None
 
 
 # --------------------------------------------------------------------------------------

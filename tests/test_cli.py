@@ -253,6 +253,31 @@ def test_output_paths_through_a_file_are_refused_before_any_solve(tmp_path):
         assert code == 1 and out == "" and message in err, (argv, err)
 
 
+def test_unwritable_outputs_are_refused_before_any_solve(tmp_path):
+    """An output folder that cannot take a file (here /proc, which takes no new file even
+    from root; and a folder without write permission where permissions apply) is refused
+    before the finger is even compiled: no progress line, exit 1, one error naming it."""
+    places = [pathlib.Path("/proc")]
+    if hasattr(os, "geteuid") and os.geteuid() != 0:
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        places.append(locked)
+    for place in places:
+        for argv in (
+            ["solve", REF_A, "--out", str(place / "new" / "r.json")],
+            [
+                "grasp",
+                str(ROOT / "examples" / "grasp_finger1.toml"),
+                "--plot",
+                str(place / "g.png"),
+            ],
+            ["sweep", str(ROOT / "examples" / "sweep_clamp.toml"), "--out", str(place / "sweep")],
+        ):
+            code, out, err = run(argv)
+            assert code == 1 and out == "", (argv, err)
+            assert f"cannot write in {place}" in err and "compiling" not in err, (argv, err)
+
+
 def test_limit_of_zero_loads_is_refused(tmp_path):
     text = (ROOT / "examples" / "ref_a.toml").read_text()
     assert "force = [0.05, 0.0, 0.0]" in text

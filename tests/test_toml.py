@@ -805,3 +805,23 @@ def test_contact_near_segments():
         assert back.contact.near_segments == near
     with pytest.raises(fr.FingerError, match=r"contact.near_segments must be a positive integer"):
         fr.validate_finger(eqx.tree_at(lambda f: f.contact, finger, fr.Contact(near_segments=0)))
+
+
+@pytest.mark.parametrize(
+    "beam,key,value,field",
+    [("front", "tip", [0.0, 0.0], "front.tip"), ("back", "base", [0.0, 120.0], "back.base")],
+)
+def test_pattern_on_a_zero_length_beam_names_the_beam(beam, key, value, field):
+    """A main beam whose two ends coincide is named as such, whatever else the pattern
+    asks (a horizontal pattern needs a rising back beam, but that is not the fault)."""
+    d = doc()
+    del d["crossbeams"]
+    d["crossbeam_pattern"] = {
+        "count": 3,
+        "front_s": [30.0, 90.0],
+        "horizontal": True,
+        "thickness": 1.0,
+        "depth": 20.0,
+    }
+    d[beam][key] = value
+    assert_error(d, f"{field} = {value}", f"the {beam} beam has zero length")

@@ -582,3 +582,26 @@ def test_fold_options_name_the_bad_field(field, value):
 
     with pytest.raises(ValueError, match=f"FoldOptions.{field} must be"):
         FoldOptions(**{field: value})
+
+
+@pytest.mark.parametrize("thickness", [15.0, 40.0])
+def test_crossbeams_thicker_than_their_spacing_are_refused(finger, thickness):
+    """Neighbouring crossbeams whose footprints on a main beam overlap (thickness over
+    the sine of their angle to it, against the spacing of their attachments) are one
+    solid block, not two crossbeams: refused, naming both and their thicknesses."""
+    t = np.asarray(finger.crossbeams.thickness).copy()
+    t[:2] = thickness
+    spacing = float(np.diff(np.asarray(finger.crossbeams.front_s))[0])
+    assert thickness >= spacing  # (ref-A's crossbeams are 15 mm apart on the front beam)
+    _raises(
+        _crossbeams(finger, thickness=t),
+        "crossbeams 0 and 1 overlap where they meet the front beam",
+        "crossbeams[0].thickness",
+        f"{thickness:.4g}",
+    )
+
+
+def test_crossbeams_just_clear_of_each_other_are_accepted(finger):
+    t = np.asarray(finger.crossbeams.thickness).copy()
+    t[:2] = 5.0  # far below the 15 mm spacing, at ref-A's angles
+    fr.validate_finger(_crossbeams(finger, thickness=t))
