@@ -222,6 +222,11 @@ def _add_grasp_parser(sub):
     _add_check_resolution(gr, "the contact normal force")
 
 
+# The release traces' friction `finray compare` reports by default: a first result to set
+# beside the paper's measured holding forces, which include friction.
+COMPARE_FRICTION = 0.3
+
+
 def _add_compare_parser(sub):
     cmp_ = sub.add_parser(
         "compare",
@@ -236,9 +241,10 @@ def _add_compare_parser(sub):
     cmp_.add_argument(
         "--friction",
         type=_nonnegative_float,
-        default=0.0,
+        default=COMPARE_FRICTION,
         metavar="MU",
-        help="friction coefficient of the release traces (default 0: frictionless)",
+        help=f"friction coefficient of the release traces (default {COMPARE_FRICTION:g}, TPU on a "
+        "plastic cylinder; 0: the frictionless, geometric holding force)",
     )
 
 

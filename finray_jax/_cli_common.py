@@ -82,7 +82,6 @@ def progress(msg):
 # How long the first compile of each program takes on one core of the 2-core reference
 # machine (benchmarks/README.md); the persistent cache cuts a later run's to about a tenth.
 COMPILE_TIMES = {
-    "validity rules": "about 2 s",
     "planar solver": "about 7 s",
     "3-D solver": "about 10 s",
     "limit-load search": "about 8 s",

@@ -259,7 +259,6 @@ def validate_command(args) -> int:
     if kind is not None:
         print(_validate_study(args.finger, kind))
         return EXIT_OK
-    compiling("validity rules", "of a finger")
     finger, settings = fio.load_finger(args.finger)
     grasp = check_grasp_objects(args.finger, finger, settings)
     name = f" ({settings.name})" if settings.name else ""

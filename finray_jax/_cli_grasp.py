@@ -89,9 +89,10 @@ def _release(g, gs, friction):
     """The release trace, printed as the holding force."""
     progress(f"release trace, pull steps of {num(gs.pull_step)} mm")
     trace = fr.release_force(g, step=gs.pull_step, friction=friction)
+    mu = float(g.finger.contact.friction) if friction is None else friction
     print(
-        f"  holding force     {num(trace.peak)} N at pull {num(trace.peak_pull)} mm "
-        f"({trace.message})"
+        f"  holding force     {num(trace.peak)} N at pull {num(trace.peak_pull)} mm, "
+        f"friction mu = {mu:g} ({trace.message})"
     )
     return trace
 
@@ -129,13 +130,17 @@ def grasp_command(args) -> int:
         else f"actuator force {num(gs.actuator_force)} N"
     )
     compiling("contact solver", "for this grasp")
+    follows = "actuator force" if gs.actuator_force is None else "closing"
+    print(f"grasp: {how} held, the {follows} follows")
     progress(f"grasp, {how}")
     t0 = time.perf_counter()
     g = fr.grasp(finger, **gs.grasp_kwargs())
     print("\n".join(_grasp_lines(g, settings.name or args.finger)))
     _print_short_of_force(g, gs)
     print(f"  solved in {time.perf_counter() - t0:.2f} s")
-    trace = _release(g, gs, args.friction) if args.release and g.converged else None
+    friction = args.friction if args.friction is not None else gs.friction
+    release = (args.release or gs.release) and g.converged
+    trace = _release(g, gs, friction) if release else None
     rigid = _rigid_estimate(g) if args.rigid_estimate and g.converged else None
     check = None
     if rtol is not None and g.converged:

@@ -53,7 +53,9 @@ class GraspSettings:
 
     closing (mm) or actuator_force (N); direction: the closing direction (x, z) of the
     finger's base; symmetric: a two-finger parallel grasp; pull_step: the step (mm) of
-    the release-force trace.
+    the release-force trace; release: `finray grasp` traces the release and reports the
+    holding force without being asked (--release); friction: the release trace's
+    Coulomb coefficient (None: the finger's [contact] friction; --friction overrides).
     """
 
     closing: float | None = None
@@ -61,6 +63,8 @@ class GraspSettings:
     direction: tuple = (-1.0, 0.0)
     symmetric: bool = True
     pull_step: float = 2.0
+    release: bool = False
+    friction: float | None = None
 
     def grasp_kwargs(self) -> dict:
         return {
@@ -138,7 +142,8 @@ def _read_options(tbl: dict, r: TomlReader, fields) -> dict:
 
 def read_grasp_table(value, r: TomlReader) -> GraspSettings:
     """The [grasp] table: exactly one of closing and actuator_force, and the options."""
-    keys = ("closing", "actuator_force", "direction", "symmetric", "pull_step")
+    keys = ("closing", "actuator_force", "direction", "symmetric", "pull_step", "release")
+    keys += ("friction",)
     tbl = r.table(value, "grasp", keys)
     if ("closing" in tbl) == ("actuator_force" in tbl):
         raise r.error("grasp", "give exactly one of closing (mm) and actuator_force (N)")
@@ -154,4 +159,8 @@ def read_grasp_table(value, r: TomlReader) -> GraspSettings:
         ),
         symmetric=r.boolean(tbl.get("symmetric", True), "grasp.symmetric"),
         pull_step=r.number(tbl.get("pull_step", 2.0), "grasp.pull_step", positive=True),
+        release=r.boolean(tbl.get("release", False), "grasp.release"),
+        friction=r.number(tbl["friction"], "grasp.friction", nonnegative=True)
+        if "friction" in tbl
+        else None,
     )

@@ -529,7 +529,7 @@ def test_comparison_table_says_n_a_for_an_unknown_release_force():
     grasp = SimpleNamespace(contact=contact)
     cmp = studies.Comparison(6.0, grasp, grasp, {35.0: (trace(1.0), trace(float("nan")))})
     lines = cli._comparison_lines(cmp)
-    row = next(line for line in lines if line.lstrip().startswith("release force, 35 mm"))
+    row = next(line for line in lines if line.lstrip().startswith("holding force, 35 mm"))
     assert "n/a" in row and "nan %" not in row and "+0 %" in "\n".join(lines)
 
 

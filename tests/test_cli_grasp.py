@@ -17,6 +17,11 @@ def test_grasp_command_writes_contact_outputs(tmp_path):
     assert code == 0, err
     assert "contact force" in stdout and "actuator force" in stdout
     assert "  ... grasp, closing 6 mm" in err  # (on stderr, before the solve)
+    # The shipped example says what it holds equal, and traces the release with its
+    # stated friction ([grasp] release = true, friction = 0.3): a holding force, not 0 N.
+    assert stdout.startswith("grasp: closing 6 mm held, the actuator force follows")
+    holding = next(line for line in stdout.splitlines() if "holding force" in line)
+    assert "friction mu = 0.3" in holding and float(holding.split()[2]) > 0.1
     d = json.loads(out.read_text())
     assert d["status"] == "converged"
     c = d["contact"]
@@ -119,6 +124,8 @@ def test_compare_and_clamp_study(tmp_path):
     code, stdout, err = run(["compare", "--out", str(tmp_path)])
     assert code == 0, err
     assert "paper" in stdout and "+260 %" in stdout
+    first = stdout.splitlines()[0]
+    assert "the closing is held equal" in first and "friction mu = 0.3" in first
     d = json.loads((tmp_path / "compare.json").read_text())
     assert d["modified"]["contact"]["normal_force"] > d["original"]["contact"]["normal_force"]
     assert set(d["release"]) == {"35.0", "50.0", "65.0"}
