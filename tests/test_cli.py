@@ -77,6 +77,21 @@ def test_solve_exit_code_and_summary(ref_a_solved):
     assert "tip displacement" in out and "reactions" in out
 
 
+def test_quiet_silences_progress_and_keeps_the_results(monkeypatch):
+    """--quiet leaves stderr without progress lines (the compile notice included), and
+    stdout with the same results."""
+    from finray_jax import _cli_common
+
+    monkeypatch.setattr(_cli_common._Voice, "compiled", set())  # (a fresh process's state)
+    code, out, err = run(["solve", REF_A, "--quiet"])
+    assert code == 0 and err == "" and "tip displacement" in out
+    monkeypatch.setattr(_cli_common._Voice, "compiled", set())
+    code, loud, err = run(["solve", REF_A])
+    assert code == 0 and "  ... compiling the planar solver for this finger" in err
+    strip = lambda text: [ln for ln in text.splitlines() if not ln.startswith("status:")]
+    assert strip(loud) == strip(out)  # (the status line holds the solve's time)
+
+
 def test_solve_json_keys(ref_a_solved):
     _, _, _, data, _ = ref_a_solved
     assert SOLUTION_KEYS <= set(data)
