@@ -133,7 +133,10 @@ def compare_command(args) -> int:
     wrote = [png]
     if cmp.release:  # (the release traces: holding force against pull distance)
         wrote.append(os.path.join(args.out, "compare_release.png"))
-        save_figure(release_comparison_figure(cmp.release, friction=args.friction), wrote[-1])
+        save_figure(
+            release_comparison_figure(cmp.release, friction=args.friction, closing=cmp.closing),
+            wrote[-1],
+        )
     js = os.path.join(args.out, "compare.json")
     fio.write_json(js, comparison_to_dict(cmp))
     print("\n".join(f"wrote {p}" for p in (*wrote, js, kept)))

@@ -42,8 +42,10 @@ def plot_run(problem: OptimizeProblem, setup: Setup, state: dict, out_dir: str, 
     if state["best"] is not None:
         b = state["best"]
         ax.plot([b["iteration"]], [b["objective"]], "*", ms=12, color="tab:green", label="best")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel(f"{problem.objective} ({problem.aggregate}) (N)")
+    ax.set_xlabel("iteration of the optimiser")
+    objective = problem.objective.replace("_", " ")
+    ax.set_ylabel(f"{objective}, {problem.aggregate} over the objects (N)")
+    ax.set_title(f"optimisation: {objective} ({problem.aggregate}) per iteration", fontsize="medium")
     ax.grid(True, lw=0.4, alpha=0.5)
     ax.legend(fontsize="small")
     conv = os.path.join(out_dir, CONVERGENCE_PNG)
@@ -58,12 +60,7 @@ def plot_run(problem: OptimizeProblem, setup: Setup, state: dict, out_dir: str, 
     axs = np.asarray(fig.subplots(n, 2, squeeze=False))
     for i in range(n):
         for j, (g, what) in enumerate(((before[i], "initial"), (after[i], "best"))):
-            plot_grasp(
-                g,
-                axs[i, j],
-                title=f"{what} design, object {i}\ncontact force "
-                f"{float(g.contact.normal_force):.4g} N",
-            )
+            plot_grasp(g, axs[i, j], title=f"{what} design, object {i}")
     design = os.path.join(out_dir, DESIGN_PNG)
     save_figure(fig, design)
     return (design, conv)
