@@ -45,7 +45,9 @@ def plot_run(problem: OptimizeProblem, setup: Setup, state: dict, out_dir: str, 
     ax.set_xlabel("iteration of the optimiser")
     objective = problem.objective.replace("_", " ")
     ax.set_ylabel(f"{objective}, {problem.aggregate} over the objects (N)")
-    ax.set_title(f"optimisation: {objective} ({problem.aggregate}) per iteration", fontsize="medium")
+    ax.set_title(
+        f"optimisation: {objective} ({problem.aggregate}) per iteration", fontsize="medium"
+    )
     ax.grid(True, lw=0.4, alpha=0.5)
     ax.legend(fontsize="small")
     conv = os.path.join(out_dir, CONVERGENCE_PNG)
