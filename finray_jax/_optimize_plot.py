@@ -37,13 +37,28 @@ def plot_run(problem: OptimizeProblem, setup: Setup, state: dict, out_dir: str, 
     ax = fig.add_subplot()
     it = data["iteration"]
     feas = data["feasible"] > 0
-    ax.plot(it, data["objective"], "-", color="tab:blue", label=problem.objective)
-    ax.plot(it[~feas], data["objective"][~feas], "x", color="tab:red", label="infeasible")
+    objective = problem.objective.replace("_", " ")
+    ax.plot(it, data["objective"], "-o", ms=3, color="tab:blue", label=f"{objective} of the design")
+    ax.plot(
+        it[~feas],
+        data["objective"][~feas],
+        "x",
+        ms=8,
+        color="tab:red",
+        label="infeasible (a constraint violated)",
+    )
     if state["best"] is not None:
         b = state["best"]
-        ax.plot([b["iteration"]], [b["objective"]], "*", ms=12, color="tab:green", label="best")
+        ax.plot(
+            [b["iteration"]],
+            [b["objective"]],
+            "*",
+            ms=12,
+            color="tab:green",
+            label="best feasible design",
+        )
     ax.set_xlabel("iteration of the optimiser")
-    objective = problem.objective.replace("_", " ")
+    ax.xaxis.get_major_locator().set_params(integer=True)
     ax.set_ylabel(f"{objective}, {problem.aggregate} over the objects (N)")
     ax.set_title(
         f"optimisation: {objective} ({problem.aggregate}) per iteration", fontsize="medium"

@@ -135,8 +135,16 @@ def plot_finger(
 
 
 def shape_legend(ax) -> None:
-    """The legend of a shape plot: every labelled artist, small, in the emptiest corner."""
-    ax.legend(loc="best", fontsize="x-small", framealpha=0.9, handlelength=2.2)
+    """The legend of a shape plot: every labelled artist, small, below the axes (where it
+    covers nothing)."""
+    ax.legend(
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.08),
+        ncol=2,
+        fontsize="x-small",
+        frameon=False,
+        handlelength=2.2,
+    )
 
 
 def draw_adaptor(ax, sol, finger: Finger) -> None:
@@ -176,7 +184,7 @@ def draw_adaptor(ax, sol, finger: Finger) -> None:
             alpha=0.5,
             solid_capstyle="butt",
             zorder=2.5,
-            label=None if clamped else "clamped length (rigid)",
+            label=None if clamped else f"clamped length ({length:.3g} mm, rigid)",
         )
         clamped = True
     if ad.support_length is not None:
@@ -191,7 +199,7 @@ def draw_adaptor(ax, sol, finger: Finger) -> None:
             color="black",
             lw=4,
             solid_capstyle="butt",
-            label=f"rigid support (to {float(ad.support_length):g} mm)",
+            label=f"rigid support (to {float(ad.support_length):.3g} mm)",
         )
 
 

@@ -142,7 +142,7 @@ def plot_pressure(ax_full, ax_zoom, grasps, titles) -> None:
         ax_full.axvspan(*window, color="0.5", alpha=0.15, lw=0, label="zoomed (right)")
         ax_zoom.set_xlim(*window)
         ax_zoom.set_title("zoom on the contact (dots: solution points)", fontsize="medium")
-    ax_full.legend(fontsize="x-small", loc="upper left")
+    ax_full.legend(fontsize="x-small", loc="best")
 
 
 # --------------------------------------------------------------------------------------
@@ -157,6 +157,8 @@ def plot_release(ax, traces, labels, colors=None) -> None:
         color = colors[i] if colors is not None else _color(i)
         pull, force = np.asarray(tr.pull, float), np.asarray(tr.force, float)
         peak = f"peak {tr.peak:.3g} N" if np.isfinite(tr.peak) else "no point solved"
+        if tr.peak == 0:
+            peak = "not held (peak 0 N)"
         ax.plot(pull, force, "-o", ms=3, lw=1.5, color=color, label=f"{label}: {peak}")
         if np.isfinite(tr.peak) and len(pull):
             ax.plot([tr.peak_pull], [tr.peak], "*", ms=13, color=color, mec="black", mew=0.6)
@@ -201,10 +203,11 @@ def release_comparison_figure(
         ax.set_title(f"{d:g} mm object", fontsize="medium")
     for ax in axs[1:]:
         ax.set_ylabel("")
-    grasped = "" if closing is None else f"grasped at the same closing {closing:g} mm, "
+    grasped = "" if closing is None else f" at the same closing {closing:g} mm"
     fig.suptitle(
-        f"Release: each object, {grasped}pulled toward the finger tips\n"
-        f"friction $\\mu$ = {friction:g}; the holding force is the trace's peak"
+        f"Release{grasped}: the object pulled toward the finger tips\n"
+        f"friction $\\mu$ = {friction:g}; holding force = the trace's peak (star)",
+        fontsize="medium",
     )
     return fig
 
