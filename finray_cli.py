@@ -27,7 +27,7 @@ import threading
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports it
 GRACE = 5.0  # seconds the command has to stop cleanly after the first Ctrl-C
-LINE = "finray: interrupted"
+LINE = "\nfinray: interrupted"  # (a progress bar may hold the line: start a new one)
 
 _interrupted = threading.Event()
 _finished = threading.Event()

@@ -55,6 +55,7 @@ def sweep_command(args) -> int:
     try:
         run = fsweep.run_sweep(sw, args.out, max_chunks=args.max_chunks, progress=progress_stream())
     except KeyboardInterrupt:
+        print(file=sys.stderr)  # (ends the progress bar's line)
         say_interrupted(csv_path, "designs")
         return EXIT_INTERRUPTED
     counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))

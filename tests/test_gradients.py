@@ -492,7 +492,7 @@ def test_design_values_never_recompile():
         "adaptor.front_clamp_length": 5.0,
         "crossbeams.angle[2]": 0.02,
         "crossbeams.angle": np.linspace(-0.02, 0.02, C),
-        "crossbeams.front_s[3]": 46.0,
+        "crossbeams.front_s[3]": 48.0,
         "crossbeams.back_s[5]": 95.0,
         "crossbeams.thickness[1]": 2.2,
         "crossbeams.depth[0]": 18.0,
