@@ -43,27 +43,23 @@ def _leave(code: int) -> None:
     os._exit(code)
 
 
+def _end_interrupted() -> None:
+    """Say the one line and end the process with 130, at once."""
+    _finished.set()
+    print(LINE, file=sys.stderr)
+    _leave(EXIT_INTERRUPTED)
+
+
 def _watch() -> None:
     """Wait for SIGINT; interrupt the main thread, then make sure the process ends."""
     signal.sigwait({signal.SIGINT})
     _interrupted.set()
     if _importing.is_set():  # nothing done yet: no need to stop cleanly
-        print(LINE, file=sys.stderr)
-        _leave(EXIT_INTERRUPTED)
+        _end_interrupted()
     _thread.interrupt_main()
-    try:
-        _wait_for_second_interrupt(GRACE)
-    except TimeoutError:
-        pass
+    signal.sigtimedwait({signal.SIGINT}, GRACE)  # (a second Ctrl-C ends the wait early)
     if not _finished.is_set():
-        print(LINE, file=sys.stderr)
-        _leave(EXIT_INTERRUPTED)
-
-
-def _wait_for_second_interrupt(timeout: float) -> None:
-    """Return on a second SIGINT; raise TimeoutError after `timeout` s without one."""
-    if signal.sigtimedwait({signal.SIGINT}, timeout) is None:
-        raise TimeoutError
+        _end_interrupted()
 
 
 def _unraisable(hook_args) -> None:
@@ -71,9 +67,7 @@ def _unraisable(hook_args) -> None:
     callback, a destructor) ends the process at once, with the one line; any other
     unraisable exception is shown as Python shows it."""
     if issubclass(hook_args.exc_type, KeyboardInterrupt):
-        _finished.set()
-        print(LINE, file=sys.stderr)
-        _leave(EXIT_INTERRUPTED)
+        _end_interrupted()
     sys.__unraisablehook__(hook_args)
 
 
@@ -94,9 +88,7 @@ def main() -> None:
         # may turn it into another exception (jaxlib's extension reports an ImportError).
         if not _interrupted.is_set():
             raise
-        _finished.set()
-        print(LINE, file=sys.stderr)
-        _leave(EXIT_INTERRUPTED)
+        _end_interrupted()
     if _interrupted.is_set():  # the command stopped cleanly and said so
         _finished.set()
         _leave(EXIT_INTERRUPTED)

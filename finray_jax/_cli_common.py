@@ -113,16 +113,6 @@ def shown_path(path) -> str:
     return path if rel.startswith("..") else rel
 
 
-def say_record_interrupted(record: str, what: str) -> None:
-    """The interrupt's one line for a study that keeps its finished work in `record`
-    (named only when it exists)."""
-    if os.path.exists(record):
-        kept = f"finished {what} are in {record}: run the same command to continue"
-    else:
-        kept = f"no {what} had finished (nothing written yet): the same command starts afresh"
-    print(f"finray: interrupted; {kept}", file=sys.stderr)
-
-
 def finished_rows(csv_path: str) -> int:
     """Rows after the header of a results CSV (0 when there is none)."""
     try:
@@ -132,12 +122,14 @@ def finished_rows(csv_path: str) -> int:
         return 0
 
 
-def say_interrupted(csv_path: str, what: str) -> None:
-    """The interrupt's one line: how many finished rows the CSV keeps (none: nothing to
-    continue from, a re-run starts afresh)."""
-    rows = finished_rows(csv_path)
-    if rows:
-        kept = f"{rows} finished {what} are in {csv_path}: run the same command to continue"
+def say_interrupted(path: str, what: str, *, counted: bool = True) -> None:
+    """The interrupt's one line: what the command kept in `path`, a results CSV (counted:
+    how many rows) or a study's record (named when it exists); or that nothing had
+    finished, so that a re-run starts afresh."""
+    kept = finished_rows(path) if counted else os.path.exists(path)
+    if kept:
+        count = f"{kept} " if counted else ""
+        text = f"{count}finished {what} are in {path}: run the same command to continue"
     else:
-        kept = f"no {what} had finished (nothing written yet): the same command starts afresh"
-    print(f"finray: interrupted; {kept}", file=sys.stderr)
+        text = f"no {what} had finished (nothing written yet): the same command starts afresh"
+    print(f"finray: interrupted; {text}", file=sys.stderr)

@@ -22,7 +22,7 @@ from ._cli_common import (
     table,
 )
 from ._finger import loads_are_zero
-from ._grasp import check_objects, unit_direction
+from ._grasp_inputs import check_objects, unit_direction
 from .plot import save_solution_figure
 
 # --------------------------------------------------------------------------------------

@@ -16,7 +16,6 @@ from ._cli_common import (
     compiling,
     finished_rows,
     num,
-    progress,
     progress_stream,
     say_interrupted,
 )
@@ -47,10 +46,7 @@ def sweep_command(args) -> int:
         f"values {', '.join(sw.names)}; outputs {', '.join(sw.outputs)}; mode {sw.mode}"
     )
     csv_path = os.path.join(args.out, fsweep.RESULTS_CSV)
-    done = finished_rows(csv_path)
-    if 0 < done < sw.size:
-        progress(f"resuming: {done} of {sw.size} designs are in {csv_path}; continuing")
-    if done < sw.size:
+    if finished_rows(csv_path) < sw.size:
         compiling("batch solver", "for this sweep's finger")
     try:
         run = fsweep.run_sweep(sw, args.out, max_chunks=args.max_chunks, progress=progress_stream())

@@ -20,7 +20,7 @@ from ._cli_common import (
     num,
     percent,
     progress,
-    say_record_interrupted,
+    say_interrupted,
     table,
 )
 from .plot import clamp_study_figure, grasp_figure, release_comparison_figure, save_figure
@@ -119,7 +119,7 @@ def compare_command(args) -> int:
             finger, closing=args.closing, friction=args.friction, progress=progress, record=kept
         )
     except KeyboardInterrupt:
-        say_record_interrupted(kept, "grasps and release traces")
+        say_interrupted(kept, "grasps and release traces", counted=False)
         return EXIT_INTERRUPTED
     print("\n".join(comparison_lines(cmp)))
     print(
@@ -200,7 +200,7 @@ def clamp_study_command(args) -> int:
             record=js,
         )
     except KeyboardInterrupt:
-        say_record_interrupted(js, "grasps")
+        say_interrupted(js, "grasps", counted=False)
         return EXIT_INTERRUPTED
     _print_clamp_tables(st, args)
     if not np.all(np.isfinite(st.normal_force)):

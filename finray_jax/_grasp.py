@@ -32,11 +32,8 @@ from ._contact_result import contact_result, with_members
 from ._errors import FingerError
 from ._finger import Finger
 from ._grasp_inputs import check_objects, unit_direction, with_objects_moved, with_stiffness
-from ._grasp_inputs import with_contact as with_contact  # (the optimizer imports it here)
 from ._grasp_solution import GRASP_STEPS, GraspSolution
 from ._integrator import Integrator
-from ._release import ReleaseTrace as ReleaseTrace  # (_study_record imports it here)
-from ._release import release_force as release_force  # (the optimizer imports it here)
 from ._solution import RESULTS
 from ._solve import SolverOptions, direct_core
 from ._stepper import Stepper

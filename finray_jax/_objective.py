@@ -9,12 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._contact_result import contact_result
 from ._finger import BACK, FRONT, Finger
-from ._grasp import (
-    contact_result,
-    with_objects_moved,
-    with_stiffness,
-)
+from ._grasp_inputs import with_objects_moved, with_stiffness
 from ._integrator import Integrator
 from ._solution import RESULTS
 from ._solve import SolverOptions, direct_core

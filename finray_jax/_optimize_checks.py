@@ -14,7 +14,7 @@ import numpy as np
 from . import io as fio
 from ._finger import Finger, FingerError, beam_lengths, validate_finger
 from ._geometry import main_beam_samples
-from ._grasp import check_objects, unit_direction
+from ._grasp_inputs import check_objects, unit_direction
 from ._optimize_problem import DesignVar, OptimizeProblem
 from .design import set_design as _set_design
 

@@ -15,15 +15,9 @@ import numpy as np
 
 from ._contact import friction_may_act, with_friction
 from ._finger import Finger
-from ._grasp import (
-    GraspSolution,
-    Stepper,
-    grasp,
-    release_force,
-    with_contact,
-    with_objects_moved,
-    with_stiffness,
-)
+from ._grasp import grasp
+from ._grasp_inputs import with_contact, with_objects_moved, with_stiffness
+from ._grasp_solution import GraspSolution
 from ._objective import (
     CONSTRAINTS,
     Anchors,
@@ -34,8 +28,10 @@ from ._objective import (
     pull_slope,
 )
 from ._optimize_problem import OptimizeProblem
+from ._release import release_force
 from ._solution import RESULTS
 from ._solve import SolverOptions
+from ._stepper import Stepper
 from .design import design_valid_jit
 from .design import set_design as _set_design
 from .optimize_file import OptimizeError

@@ -7,7 +7,8 @@ import os
 
 import numpy as np
 
-from ._grasp import grasp, with_stiffness
+from ._grasp import grasp
+from ._grasp_inputs import with_stiffness
 from ._optimize_eval import Setup
 from ._optimize_problem import OptimizeProblem
 from ._optimize_record import PROGRESS_CSV, read_progress

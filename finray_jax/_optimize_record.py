@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import io as fio
-from ._grasp import with_contact
+from ._grasp_inputs import with_contact
 from ._objective import Anchors
 from ._optimize_problem import OptimizeProblem
 from .optimize_file import FORMAT, OptimizeError

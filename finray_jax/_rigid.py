@@ -19,8 +19,11 @@ import dataclasses
 
 import numpy as np
 
-from ._grasp import GraspSolution, Stepper, contact_result, with_stiffness
+from ._contact_result import contact_result
+from ._grasp_inputs import with_stiffness
+from ._grasp_solution import GraspSolution
 from ._solve import SolverOptions
+from ._stepper import Stepper
 
 OUTPUTS = {
     "normal_force": lambda sol, c: float(c.normal_force),

@@ -11,7 +11,7 @@ import numpy as np
 
 from . import io as fio
 from ._finger import Finger
-from ._grasp import ReleaseTrace
+from ._release import ReleaseTrace
 
 
 class StudyRecordError(ValueError):

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import io as fio
 from ._finger import Finger, FingerError
-from ._grasp import check_objects, unit_direction
+from ._grasp_inputs import check_objects, unit_direction
 from ._solve import resolve_mode
 from .design import (
     GRASP_OUTPUTS,

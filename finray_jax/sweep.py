@@ -267,9 +267,9 @@ def run_sweep(
     (not drawn when no design converged or went beyond its limit load: nothing to plot).
 
     max_chunks: stop after this many chunks (re-run to continue). progress: a text stream
-    for the progress line, e.g. sys.stderr (None: quiet). after_chunk(rows_done) runs
-    after every chunk has been written (a hook for tests and callers). The figure is drawn
-    when all rows exist.
+    for the progress bar, and a line saying where a resumed sweep continues, e.g.
+    sys.stderr (None: quiet). after_chunk(rows_done) runs after every chunk has been
+    written (a hook for tests and callers). The figure is drawn when all rows exist.
     """
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
@@ -282,6 +282,8 @@ def run_sweep(
     designs = sweep.designs()
     diagnose = Diagnosis(sweep.finger, sweep.mode)
     done = _resume(sweep, csv_path, designs, diagnose)
+    if progress is not None and 0 < done < sweep.size:
+        print(f"  ... resuming: {done} of {sweep.size} designs are in {csv_path}", file=progress)
     bar = _progress_bar(sweep.size, done, progress)
     failed = 0
     with bar:

@@ -157,6 +157,7 @@ def test_max_chunks_and_the_cli(sweep_file, tmp_path):
     assert "sweep:" in err and "4/6" in err and "0 not converged" in err, err
     code, stdout, err = run(["sweep", str(sweep_file), "--out", str(out)])
     assert code == 0, err
+    assert f"resuming: 4 of 6 designs are in {out / 'results.csv'}" in err, err
     assert "6 of 6 designs: 6 converged" in stdout
     assert (out / "sweep.png").exists()
     _, rows = _csv(out / "results.csv")

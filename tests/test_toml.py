@@ -77,6 +77,21 @@ def doc():
     return copy.deepcopy(BASE)
 
 
+def pattern_doc():
+    """`doc()` with its crossbeams given as the equivalent [crossbeam_pattern]: three
+    horizontal crossbeams at front_s 30, 60, 90."""
+    d = doc()
+    del d["crossbeams"]
+    d["crossbeam_pattern"] = {
+        "count": 3,
+        "front_s": [30.0, 90.0],
+        "horizontal": True,
+        "thickness": 1.0,
+        "depth": 20.0,
+    }
+    return d
+
+
 def load(d):
     return fio.loads_finger(to_toml(d), source="bad.toml")
 
@@ -557,15 +572,7 @@ def test_unknown_meta_key():
 
 
 def test_pattern_horizontal_equals_explicit():
-    d = doc()
-    del d["crossbeams"]
-    d["crossbeam_pattern"] = {
-        "count": 3,
-        "front_s": [30.0, 90.0],
-        "horizontal": True,
-        "thickness": 1.0,
-        "depth": 20.0,
-    }
+    d = pattern_doc()
     f_pattern, _ = load(d)
     f_explicit, _ = load(doc())
     for key in ("front_s", "back_s", "thickness", "depth"):
@@ -592,13 +599,7 @@ def test_pattern_explicit_back_s():
 
 def test_pattern_and_crossbeams_conflict():
     d = doc()
-    d["crossbeam_pattern"] = {
-        "count": 3,
-        "front_s": [30.0, 90.0],
-        "horizontal": True,
-        "thickness": 1.0,
-        "depth": 20.0,
-    }
+    d["crossbeam_pattern"] = pattern_doc()["crossbeam_pattern"]
     assert_error(d, "crossbeam_pattern", "not both")
 
 
@@ -610,28 +611,14 @@ def test_pattern_needs_back_s_or_horizontal():
 
 
 def test_pattern_bad_count():
-    d = doc()
-    del d["crossbeams"]
-    d["crossbeam_pattern"] = {
-        "count": 2.5,
-        "front_s": [30.0, 90.0],
-        "horizontal": True,
-        "thickness": 1.0,
-        "depth": 20.0,
-    }
+    d = pattern_doc()
+    d["crossbeam_pattern"]["count"] = 2.5
     assert_error(d, "crossbeam_pattern.count = 2.5", "integer")
 
 
 def test_pattern_outside_beam_is_reported():
-    d = doc()
-    del d["crossbeams"]
-    d["crossbeam_pattern"] = {
-        "count": 3,
-        "front_s": [30.0, 125.0],
-        "horizontal": True,
-        "thickness": 1.0,
-        "depth": 20.0,
-    }
+    d = pattern_doc()
+    d["crossbeam_pattern"]["front_s"] = [30.0, 125.0]
     assert_error(d, "crossbeams[2].front_s = 125.0", "crossbeam_pattern")
 
 
@@ -814,14 +801,6 @@ def test_contact_near_segments():
 def test_pattern_on_a_zero_length_beam_names_the_beam(beam, key, value, field):
     """A main beam whose two ends coincide is named as such, whatever else the pattern
     asks (a horizontal pattern needs a rising back beam, but that is not the fault)."""
-    d = doc()
-    del d["crossbeams"]
-    d["crossbeam_pattern"] = {
-        "count": 3,
-        "front_s": [30.0, 90.0],
-        "horizontal": True,
-        "thickness": 1.0,
-        "depth": 20.0,
-    }
+    d = pattern_doc()
     d[beam][key] = value
     assert_error(d, f"{field} = {value}", f"the {beam} beam has zero length")
