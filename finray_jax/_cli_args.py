@@ -278,6 +278,40 @@ def _add_clamp_study_parser(sub):
         metavar="MU",
         help="friction coefficient of the release traces (with --holding; default 0)",
     )
+    _add_engine_options(cs)
+
+
+def _add_engine_options(p) -> None:
+    """Where the work runs (docs/distributed.md): this process, or a Ray cluster."""
+    g = p.add_argument_group("engine (docs/distributed.md)")
+    g.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help="where the work runs: this process (default) or a Ray cluster (Ray Core tasks)",
+    )
+    g.add_argument(
+        "--address",
+        default=None,
+        metavar="auto|HOST:PORT",
+        help="the Ray cluster to use (default: $RAY_ADDRESS, else a Ray instance started on "
+        "this machine for the run)",
+    )
+    g.add_argument(
+        "--workers", type=int, default=None, metavar="N", help="Ray tasks running at once"
+    )
+    g.add_argument(
+        "--task-cpus", type=float, default=None, metavar="N", help="CPUs per Ray task (default 1)"
+    )
+    g.add_argument(
+        "--task-gpus", type=float, default=None, metavar="N", help="GPUs per Ray task (default 0)"
+    )
+    g.add_argument(
+        "--cache-dir",
+        default=None,
+        metavar="DIR",
+        help="the Ray workers' compilation cache, e.g. on storage all nodes share",
+    )
 
 
 def _add_sweep_parser(sub):
@@ -286,11 +320,18 @@ def _add_sweep_parser(sub):
         help="solve a sweep of designs (sweep file: docs/sweep-format.md)",
         description="Sample design values of a finger, solve every design in batches, and "
         "write DIR/results.csv (one row per design, chunk by chunk), DIR/manifest.json and "
-        "DIR/sweep.png. Re-running the same sweep into DIR continues where it stopped.",
+        "DIR/sweep.png. Re-running the same sweep into DIR continues where it stopped. "
+        "With --engine ray the chunks run on a Ray cluster.",
     )
     sw.add_argument("sweep", metavar="SWEEP.toml")
     sw.add_argument("--out", metavar="DIR", required=True, help="output directory")
     sw.add_argument("--max-chunks", type=int, default=None, metavar="N", help="stop after N chunks")
+    sw.add_argument(
+        "--parquet",
+        action="store_true",
+        help="also write DIR/results.parquet when the sweep is finished (needs pyarrow)",
+    )
+    _add_engine_options(sw)
 
 
 def _add_optimize_parser(sub):

@@ -133,3 +133,25 @@ def say_interrupted(path: str, what: str, *, counted: bool = True) -> None:
     else:
         text = f"no {what} had finished (nothing written yet): the same command starts afresh"
     print(f"finray: interrupted; {text}", file=sys.stderr)
+
+
+def engine_from_args(args):
+    """The engine the --engine options name (an EngineError names a bad setting)."""
+    from .engines import engine_named, require_ray
+
+    if args.engine == "ray":
+        require_ray()
+    return engine_named(
+        args.engine,
+        address=args.address,
+        workers=args.workers,
+        task_cpus=args.task_cpus,
+        task_gpus=args.task_gpus,
+        cache_dir=args.cache_dir,
+    )
+
+
+def engine_notice(engine, program: str) -> None:
+    """Where the work runs, on stderr (a cluster's workers compile `program` each)."""
+    if engine.name != "local":
+        progress(f"running on {engine.describe()}; each worker compiles the {program} once")

@@ -14,6 +14,8 @@ from ._cli_common import (
     EXIT_OK,
     UserError,
     compiling,
+    engine_from_args,
+    engine_notice,
     finished_rows,
     num,
     progress_stream,
@@ -41,29 +43,57 @@ def sweep_command(args) -> int:
     if args.max_chunks is not None and args.max_chunks < 1:
         raise UserError(f"--max-chunks must be a positive integer, got {args.max_chunks}")
     sw = fsweep.load_sweep(args.sweep)
+    engine = engine_from_args(args)
     print(
         f"sweep {args.sweep}: {sw.size} designs ({sw.sampling}) of {sw.finger_path}, "
         f"values {', '.join(sw.names)}; outputs {', '.join(sw.outputs)}; mode {sw.mode}"
     )
     csv_path = os.path.join(args.out, fsweep.RESULTS_CSV)
+    program = "contact solver" if sw.settings.grasp is not None else "batch solver"
     if finished_rows(csv_path) < sw.size:
-        compiling("batch solver", "for this sweep's finger")
+        engine_notice(engine, program)
+        if engine.name == "local":
+            compiling(program, "for this sweep's finger")
     try:
-        run = fsweep.run_sweep(sw, args.out, max_chunks=args.max_chunks, progress=progress_stream())
+        run = fsweep.run_sweep(
+            sw,
+            args.out,
+            engine=engine,
+            max_chunks=args.max_chunks,
+            progress=progress_stream(),
+            parquet=args.parquet,
+        )
     except KeyboardInterrupt:
         print(file=sys.stderr)  # (ends the progress bar's line)
         say_interrupted(csv_path, "designs")
         return EXIT_INTERRUPTED
     counts = ", ".join(f"{n} {status}" for status, n in sorted(run.counts.items()))
     print(f"wrote {run.csv} ({run.done} of {run.total} designs: {counts or 'none yet'})")
-    if run.figure:
-        print(f"wrote {run.figure}")
-    elif not run.finished:
+    for path in (run.figure, run.parquet):
+        if path:
+            print(f"wrote {path}")
+    _print_workers(run)
+    for chunk in run.failed_chunks:
+        print(f"finray: {chunk.describe()}", file=sys.stderr)
+    if not run.finished:
         print("not finished: run the same command to continue")
+    if run.failed_chunks:
+        return EXIT_FAILED
     if run.finished and run.converged == 0:
         print(f"finray: {_no_design_converged(run)}", file=sys.stderr)
         return EXIT_FAILED
     return EXIT_OK
+
+
+def _print_workers(run) -> None:
+    """Each worker's chunks and seconds, when more than one process solved them."""
+    if len(run.workers) < 2:
+        return
+    for name, t in sorted(run.workers.items()):
+        print(
+            f"  worker {name}: {t.chunks} chunks in {t.seconds:.1f} s (first chunk, with its "
+            f"compile: {t.first_seconds:.1f} s)"
+        )
 
 
 def _print_best(pr, run) -> None:

@@ -17,6 +17,8 @@ from ._cli_common import (
     EXIT_OK,
     UserError,
     compiling,
+    engine_from_args,
+    engine_notice,
     num,
     percent,
     progress,
@@ -187,8 +189,11 @@ def clamp_study_command(args) -> int:
             "(the actuator force sets each grasp's closing)"
         )
     finger = _study_finger(args.finger)
+    engine = engine_from_args(args)
     js = os.path.join(args.out, "clamp_study.json")
-    compiling("contact solver", "for the study's grasps")
+    engine_notice(engine, "contact solver")
+    if engine.name == "local":
+        compiling("contact solver", "for the study's grasps")
     try:
         st = studies.clamp_study(
             finger,
@@ -198,6 +203,7 @@ def clamp_study_command(args) -> int:
             friction=args.friction,
             progress=progress,
             record=js,
+            engine=engine,
         )
     except KeyboardInterrupt:
         say_interrupted(js, "grasps", counted=False)

@@ -33,6 +33,7 @@ def iter_grasps(
     mode: str = "planar",
     chunk_size: int = 16,
     start: int = 0,
+    topology=None,
 ) -> Iterator[tuple[int, BatchResult]]:
     """Grasp designs start, start + 1, ... of a finger with objects, one after another,
     and yield (first index, BatchResult) every `chunk_size` designs.
@@ -40,7 +41,8 @@ def iter_grasps(
     Each design is closed on its objects as `finray_jax.grasp(finger, **grasp_kwargs)`
     does (a path of warm-started solves; `grasp_kwargs` as `GraspSettings.grasp_kwargs()`:
     closing or actuator_force, direction, symmetric), on the base finger's segment table
-    (`grasp(topology=)`), so every design shares one compiled program. outputs: names of
+    (`grasp(topology=)`; or on `topology`, that of `topology_of(base_finger, mode)` made
+    before), so every design shares one compiled program. outputs: names of
     `design.GRASP_OUTPUTS` (the contact), `design.RELEASE_OUTPUTS` (the holding force:
     each converged grasp is then also pulled out, `release_force(g, **release_kwargs)`, on
     the same segment table) or `design.OUTPUTS` (of the grasp's equilibrium).
@@ -60,7 +62,7 @@ def iter_grasps(
     if not isinstance(chunk_size, int) or isinstance(chunk_size, bool) or chunk_size < 1:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
     kwargs = dict(grasp_kwargs)
-    topo = topology_of(base_finger, mode)
+    topo = topology_of(base_finger, mode) if topology is None else topology
     diagnosis = Diagnosis(base_finger, topo.mode, topo)
     for a in range(start, size, chunk_size):
         z = min(a + chunk_size, size)

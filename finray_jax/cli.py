@@ -50,6 +50,7 @@ from ._cli_studies import clamp_study_command, compare_command
 from ._cli_studies import comparison_lines as _comparison_lines
 from ._solve import resolve_mode
 from .design import DesignError
+from .engines import EngineError
 from .plot import grasp_figure, save_figure, save_solution_figure
 from .studies import StudyRecordError
 
@@ -256,7 +257,7 @@ def _main(argv) -> int:
     except fr.FingerError as e:  # (the finger file's, when a command reads one)
         print(f"finray: error: {_in_file(getattr(args, 'finger', None), e)}", file=sys.stderr)
         return EXIT_USER
-    except (UserError, fio.FingerFileError, DesignError, StudyRecordError) as e:
+    except (UserError, fio.FingerFileError, DesignError, StudyRecordError, EngineError) as e:
         print(f"finray: error: {e}", file=sys.stderr)
         return EXIT_USER
     except OSError as e:  # e.g. an output path that cannot be written

@@ -28,6 +28,7 @@ from ._study_record import (
     trace_record,
     write_record,
 )
+from .engines import LocalEngine
 
 # The paper's figures (quoted for comparison only).
 PAPER_CONTACT_FORCE_GAIN = 260.0  # %, simulated, 18 mm object (Fig. 4)
@@ -222,6 +223,7 @@ def clamp_study(
     pull_step: float = 2.0,
     progress=None,
     record=None,
+    engine=None,
 ) -> ClampStudy:
     """Contact force of the modified adaptor against the back beam's clamp length l_c
     (support up to `support_length`), for cylinders of several diameters.
@@ -235,7 +237,10 @@ def clamp_study(
     every grasp with the cells finished so far and the study's hash (finger and
     settings). A run that finds the record of the same study goes on from it, so an
     interrupted study loses no finished grasp; the record of another study is replaced.
-    When the study is complete the record also holds `best_clamp_length`."""
+    When the study is complete the record also holds `best_clamp_length`.
+
+    engine: where the grasps run (`finray_jax.engines`; None: this process, one after
+    another); each grasp is one task on a `RayEngine`, recorded as it lands."""
     say = progress or (lambda msg: None)
     lc = np.asarray(clamp_lengths, dtype=float)
     dia = np.asarray(diameters, dtype=float)
@@ -268,27 +273,30 @@ def clamp_study(
             rec["best_clamp_length"] = study().best
         write_record(record, rec)
 
-    how = {"closing": closing} if actuator_force is None else {"actuator_force": actuator_force}
-    for i, d in enumerate(dia):
-        base = with_object(finger, d)
-        for j, l in enumerate(lc):
-            if solved[i, j]:
-                continue
-            ad = Adaptor(
-                front_base=PinnedBase(), back_clamp_length=l, support_length=support_length
-            )
-            say(f"{d:g} mm object, l_c = {l:g} mm")
-            g = grasp(with_adaptor(base, ad), **how)
-            if g.converged:
-                cells["normal_force"][i, j] = float(g.contact.normal_force)
-                cells["closing_reached"][i, j] = float(g.closing)
-                if holding:
-                    cells["holding_force"][i, j] = _holding_force(g, d, friction, pull_step, say)
-            else:
-                say(f"{d:g} mm object, l_c = {l:g} mm: no grasp ({_why_not(g, actuator_force)})")
-            solved[i, j] = True
-            if record is not None:
-                keep()
+    work = _ClampWork(finger, dia, lc, float(support_length), actuator_force, closing)
+    work = dataclasses.replace(work, holding=holding, friction=friction, pull_step=pull_step)
+
+    def todo():  # (each grasp announced as it is taken)
+        for i, j in zip(*np.nonzero(~solved)):
+            say(f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm")
+            yield int(i), int(j)
+
+    for landed in (engine or LocalEngine()).map_unordered(clamp_cell, work, todo()):
+        i, j = landed.item
+        where = f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm"
+        if landed.error is not None:
+            say(f"{where}: its task failed ({landed.error}); run the study again to retry it")
+            continue
+        for key, value in landed.value.items():
+            if key in cells:
+                cells[key][i, j] = value
+        if landed.value["why"]:
+            say(f"{where}: no grasp ({landed.value['why']})")
+        elif holding:
+            say(f"{dia[i]:g} mm object: release trace (mu = {friction:g}) done")
+        solved[i, j] = True
+        if record is not None:
+            keep()
     if record is not None and not os.path.exists(record):
         keep()  # (nothing was left to solve)
     return study()
@@ -306,11 +314,45 @@ def _check_clamp_study(lc, support_length, actuator_force, friction) -> None:
         raise ValueError(f"friction must be a non-negative coefficient, got {friction}")
 
 
-def _holding_force(g: GraspSolution, diameter, friction, pull_step, say) -> float:
-    """The holding force of a converged grasp: the peak of its release trace (NaN: no
-    point of it solved)."""
-    say(f"{diameter:g} mm object: release trace (mu = {friction:g})")
-    return release_force(g, step=pull_step, friction=friction).peak
+@dataclasses.dataclass(frozen=True)
+class _ClampWork:
+    """What every grasp of a clamp study shares (an engine sends it to each worker)."""
+
+    finger: Finger
+    diameters: np.ndarray
+    clamp_lengths: np.ndarray
+    support_length: float
+    actuator_force: float | None
+    closing: float
+    holding: bool = False
+    friction: float = 0.0
+    pull_step: float = 2.0
+
+
+def clamp_cell(work: _ClampWork, item) -> dict:
+    """Grasp (i, j) of a clamp study: diameter i, clamp length j. Its normal force,
+    closing reached and holding force (NaN where not measured), and why it failed ("":
+    it converged)."""
+    i, j = item
+    d = float(work.diameters[i])
+    ad = Adaptor(
+        front_base=PinnedBase(),
+        back_clamp_length=float(work.clamp_lengths[j]),
+        support_length=work.support_length,
+    )
+    design = with_adaptor(with_object(work.finger, d), ad)
+    if work.actuator_force is None:
+        g = grasp(design, closing=work.closing)
+    else:
+        g = grasp(design, actuator_force=work.actuator_force)
+    out = {"normal_force": np.nan, "closing_reached": np.nan, "holding_force": np.nan}
+    if not g.converged:
+        return {**out, "why": _why_not(g, work.actuator_force)}
+    out["normal_force"] = float(g.contact.normal_force)
+    out["closing_reached"] = float(g.closing)
+    if work.holding:
+        out["holding_force"] = release_force(g, step=work.pull_step, friction=work.friction).peak
+    return {**out, "why": ""}
 
 
 def _kept_cells(record: str, digest: str, cells: dict, solved, say):

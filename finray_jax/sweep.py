@@ -1,24 +1,27 @@
 """Design sweeps from a sweep file (TOML): sample named design values of a base finger,
-solve every design with `solve_batch`, and write one CSV row per design, chunk by chunk.
+solve every design (batched solves, or grasps), and write one CSV row per design, chunk
+by chunk, on an engine: this process or a Ray cluster (`finray_jax.engines`).
 
-Format reference: docs/sweep-format.md. The CSV is written append-only with a flush and
-an fsync after every chunk, next to a manifest holding the sweep's hash: running the same
-sweep into the same directory again continues after the last complete row (an interrupt
-loses at most the chunk being solved); a different sweep there is refused. Every row
+Format reference: docs/sweep-format.md. Each row carries its design's index. This
+process alone writes the CSV, append-only with a flush and an fsync after every chunk
+as it lands (in any order on a cluster), next to a manifest holding the sweep's hash;
+when every design has its row the CSV is rewritten sorted by index. Running the same
+sweep into the same directory again solves only the designs without a row (an interrupt
+loses at most the chunks being solved); a different sweep there is refused. Every row
 carries a `reason`: empty when the design converged, else the validation error of an
 invalid design or the solver's result and message.
 
-This module runs a sweep into its results directory; the sweep file is read by
-`_sweep_file` and the figure drawn by `_sweep_plot`.
+This module drives a sweep into its results directory; the chunks are solved by
+`_sweep_chunks`, the sweep file read by `_sweep_file` and the figure drawn by
+`_sweep_plot`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
-import io
 import json
-import math
 import os
 from collections.abc import Callable
 
@@ -27,18 +30,24 @@ import tqdm
 
 from . import io as fio
 from ._solution import RESULTS
+from ._sweep_chunks import SweepWork, chunk_size, chunks, csv_line, fmt, solve_chunk, solver_reason
 from ._sweep_file import SAMPLINGS as SAMPLINGS
 from ._sweep_file import STATUS_COLUMNS as STATUS_COLUMNS
 from ._sweep_file import Axis as Axis
 from ._sweep_file import Sweep, SweepError, load_sweep, loads_sweep
 from ._sweep_plot import plot_sweep
 from ._version import __version__
-from .batch import INVALID, Diagnosis, iter_batch, iter_grasps, one_line
+from .batch import Diagnosis
+from .engines import LocalEngine, RayEngine
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
-RESULTS_CSV, MANIFEST, FIGURE = "results.csv", "manifest.json", "sweep.png"
-GRASP_CHUNK = 16  # designs grasped between two writes of results.csv (one after another)
+RESULTS_CSV, MANIFEST, FIGURE, PARQUET = (
+    "results.csv",
+    "manifest.json",
+    "sweep.png",
+    "results.parquet",
+)
 
 
 # --------------------------------------------------------------------------------------
@@ -79,17 +88,6 @@ def _check_manifest(sweep: Sweep, out_dir: str) -> str:
     return os.path.abspath(sweep.source)
 
 
-def _fmt(x) -> str:
-    return repr(float(x)) if math.isfinite(float(x)) else "nan"
-
-
-def _line(cells) -> str:
-    """One CSV line, a cell quoted where it needs it (a reason may hold commas)."""
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerow(cells)
-    return buf.getvalue()
-
-
 def _fields(line: str) -> list[str]:
     return next(csv.reader([line.rstrip("\n")]), [])
 
@@ -100,26 +98,6 @@ def _complete_lines(data: bytes) -> list[str]:
     return [line + "\n" for line in keep.split("\n")[:-1]]
 
 
-# --------------------------------------------------------------------------------------
-# Why a design did not converge (the `reason` column)
-# --------------------------------------------------------------------------------------
-
-
-_RESULT_NAMES = {int(item._value): name for name, item in RESULTS._name_to_item.items()}
-
-
-def _solver_reason(code: int) -> str:
-    """The reason of a solved design: "" when it converged, else the solver's result and
-    the first sentence of its message (e.g. "nonlinear_divergence: Nonlinear solve
-    diverged.")."""
-    code = int(code)
-    if code == int(RESULTS.successful._value):
-        return ""
-    text = one_line(RESULTS._index_to_message[code])
-    end = text.find(". ")
-    return f"{_RESULT_NAMES.get(code, code)}: {text if end < 0 else text[: end + 1]}"
-
-
 # The reason of an old row (written before the reason column) whose solver result was
 # not recorded.
 _UNRECORDED = (
@@ -128,70 +106,79 @@ _UNRECORDED = (
 )
 
 
-def _reasons(res, diagnose: Diagnosis) -> list[str]:
-    out = []
-    for k in range(res.size):
-        code = int(res.result[k])
-        if code == INVALID:
-            out.append(diagnose({n: v[k] for n, v in res.inputs.items()}))
-        else:
-            out.append(_solver_reason(code))
-    return out
-
-
-def _resume(sweep: Sweep, csv_path: str, designs, diagnose: Diagnosis) -> int:
-    """Number of complete rows already in the CSV (truncating a torn last line); checks
-    that they are the first designs of this sweep. A CSV written before the `reason`
-    column existed is rewritten with it (atomically), so the sweep continues."""
-    header = _line(sweep.columns)
+def _resume(sweep: Sweep, csv_path: str, designs, diagnose: Diagnosis) -> np.ndarray:
+    """Which designs the CSV holds already (a boolean per design), its rows in any order,
+    each checked against this sweep's design of its index; a torn last line is cut off.
+    A CSV written before the `reason` column existed is rewritten with it (atomically),
+    so the sweep continues."""
+    header = csv_line(sweep.columns)
+    have = np.zeros(sweep.size, dtype=bool)
     if not os.path.exists(csv_path):
         fio.write_atomic(csv_path, header)
-        return 0
+        return have
     with open(csv_path, "rb") as fh:
         data = fh.read()
     try:
         lines = _complete_lines(data)
     except UnicodeDecodeError as e:
         raise SweepError(f"{csv_path}: not UTF-8 text ({e}); use another --out") from None
-    legacy = _line(sweep.columns[:-1])  # the columns before the reason column existed
+    legacy = csv_line(sweep.columns[:-1])  # the columns before the reason column existed
     if not lines or lines[0] not in (header, legacy):
         raise SweepError(f"{csv_path}: its header is not this sweep's columns; use another --out")
     old = lines[0] == legacy
-    n_cols = len(sweep.columns) - old
-    done = 0
+    kept = 1
     for line in lines[1:]:
-        try:
-            fields = _fields(line)
-        except csv.Error:
+        index = _row_index(line, len(sweep.columns) - old, sweep, csv_path, designs)
+        if index is None:  # (a line no complete row: it and what follows are cut off)
             break
-        if len(fields) != n_cols or fields[0] != str(done):
-            break
-        try:
-            inputs = [float(fields[1 + j]) for j in range(len(sweep.names))]
-        except ValueError:
-            break
-        for j, name in enumerate(sweep.names):
-            if inputs[j] != float(designs[name][done]):
-                raise SweepError(
-                    f"{csv_path}: row {done} has {name} = {fields[1 + j]}, but this sweep's "
-                    f"design {done} has {_fmt(designs[name][done])}; use another --out"
-                )
-        done += 1
+        if have[index]:
+            raise SweepError(f"{csv_path}: design {index} has two rows; use another --out")
+        have[index] = True
+        kept += 1
     if old:
         status = sweep.columns.index("status")
         rows = []
-        for k, line in enumerate(lines[1 : done + 1]):
+        for line in lines[1:kept]:
             fields = _fields(line)
-            rows.append(_line([*fields, _legacy_reason(fields[status], k, designs, diagnose)]))
+            k = int(fields[0])
+            rows.append(csv_line([*fields, _legacy_reason(fields[status], k, designs, diagnose)]))
         fio.write_atomic(csv_path, header + "".join(rows))
-        return done
-    size = len("".join(lines[: done + 1]).encode("utf-8"))
+        return have
+    size = len("".join(lines[:kept]).encode("utf-8"))
     if size != len(data):
         with open(csv_path, "r+b") as fh:
             fh.truncate(size)
             fh.flush()
             os.fsync(fh.fileno())
-    return done
+    return have
+
+
+def _row_index(line: str, n_cols: int, sweep: Sweep, csv_path: str, designs) -> int | None:
+    """The design index of a complete row of this sweep (None: not a complete row); a
+    row whose values are not its design's is refused."""
+    try:
+        fields = _fields(line)
+    except csv.Error:
+        return None
+    if len(fields) != n_cols:
+        return None
+    try:
+        index = int(fields[0])
+        inputs = [float(fields[1 + j]) for j in range(len(sweep.names))]
+    except ValueError:
+        return None
+    if not 0 <= index < sweep.size:
+        raise SweepError(
+            f"{csv_path}: a row has index {index}, outside this sweep's designs 0 to "
+            f"{sweep.size - 1}; use another --out"
+        )
+    for j, name in enumerate(sweep.names):
+        if inputs[j] != float(designs[name][index]):
+            raise SweepError(
+                f"{csv_path}: row {index} has {name} = {fields[1 + j]}, but this sweep's "
+                f"design {index} has {fmt(designs[name][index])}; use another --out"
+            )
+    return index
 
 
 def _legacy_reason(status: str, k: int, designs, diagnose: Diagnosis) -> str:
@@ -201,25 +188,23 @@ def _legacy_reason(status: str, k: int, designs, diagnose: Diagnosis) -> str:
     if status == "invalid":  # (the validation is cheap: done again)
         return diagnose({n: v[k] for n, v in designs.items()})
     if status == "beyond_limit_load":
-        return _solver_reason(int(RESULTS.beyond_limit_load._value))
+        return solver_reason(int(RESULTS.beyond_limit_load._value))
     return _UNRECORDED
 
 
-def _rows(sweep: Sweep, first: int, res, reasons) -> str:
-    lines = []
-    status = res.status
-    for k in range(res.size):
-        cells = [str(first + k)]
-        cells += [_fmt(res.inputs[n][k]) for n in sweep.names]
-        cells += [_fmt(res.outputs[n][k]) for n in sweep.outputs]
-        cells += [status[k], str(int(res.iterations[k])), _fmt(res.max_residual[k])]
-        lines.append(_line([*cells, reasons[k]]))
-    return "".join(lines)
+def _sort_rows(csv_path: str) -> None:
+    """Rewrite the CSV (atomically) with its rows by design index, if they are not."""
+    with open(csv_path, "rb") as fh:
+        lines = _complete_lines(fh.read())
+    keys = [int(_fields(line)[0]) for line in lines[1:]]
+    if keys != sorted(keys):
+        order = np.argsort(keys, kind="stable")
+        fio.write_atomic(csv_path, lines[0] + "".join(lines[1 + k] for k in order))
 
 
 def _progress_bar(total: int, done: int, stream):
     """A tqdm bar on `stream` (None: none): designs done of the sweep, designs/s, the time
-    left, and how many designs did not converge."""
+    left, how many designs did not converge and the workers that delivered."""
     bar = tqdm.tqdm(
         total=total,
         initial=done,
@@ -235,14 +220,42 @@ def _progress_bar(total: int, done: int, stream):
 
 
 @dataclasses.dataclass(frozen=True)
+class FailedChunk:
+    """A chunk whose task failed for good: its design indices, and why."""
+
+    indices: tuple[int, ...]
+    error: str
+
+    def describe(self) -> str:
+        i = self.indices
+        span = f"design {i[0]}" if len(i) == 1 else f"designs {i[0]} to {i[-1]}"
+        return f"chunk of {span} ({len(i)}) failed: {self.error}"
+
+
+@dataclasses.dataclass(frozen=True)
+class WorkerTime:
+    """What one worker process did in a run: chunks, their seconds, and the seconds of
+    its first chunk (which compiled the sweep's program, unless a cache held it)."""
+
+    chunks: int = 0
+    seconds: float = 0.0
+    first_seconds: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
 class SweepRun:
-    """What `run_sweep` did: designs in the CSV (done of total), and the files written."""
+    """What `run_sweep` did: designs in the CSV (done of total), the files written, rows
+    per status, the chunks that failed for good (not in the CSV: a re-run tries them
+    again) and the workers' times."""
 
     done: int
     total: int
     csv: str
     figure: str | None
     counts: dict[str, int]  # rows per status
+    failed_chunks: tuple[FailedChunk, ...] = ()
+    workers: dict[str, WorkerTime] = dataclasses.field(default_factory=dict)
+    parquet: str | None = None
 
     @property
     def finished(self) -> bool:
@@ -258,19 +271,30 @@ def run_sweep(
     sweep: Sweep,
     out_dir,
     *,
+    engine: LocalEngine | RayEngine | None = None,
     max_chunks: int | None = None,
     progress=None,
     plot: bool = True,
+    parquet: bool = False,
     after_chunk: Callable[[int], None] | None = None,
 ) -> SweepRun:
     """Run (or continue) a sweep into `out_dir`: results.csv, manifest.json, sweep.png
-    (not drawn when no design converged or went beyond its limit load: nothing to plot).
+    (not drawn when no design converged or went beyond its limit load: nothing to plot)
+    and, with parquet, results.parquet (pyarrow).
 
+    engine: where the chunks are solved: `LocalEngine()` (None: this process) or a
+    `RayEngine` (a Ray cluster). Chunks land in any order; this process alone writes
+    them, a chunk at a time, each row with its design index; the finished CSV is sorted
+    by index, row for row what the local engine writes. A chunk whose task fails for
+    good is left out and reported (`SweepRun.failed_chunks`); a re-run solves it.
     max_chunks: stop after this many chunks (re-run to continue). progress: a text stream
     for the progress bar, and a line saying where a resumed sweep continues, e.g.
     sys.stderr (None: quiet). after_chunk(rows_done) runs after every chunk has been
     written (a hook for tests and callers). The figure is drawn when all rows exist.
     """
+    engine = LocalEngine() if engine is None else engine
+    if parquet:
+        _need_pyarrow()
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     source = _check_manifest(sweep, out_dir)
@@ -280,28 +304,74 @@ def run_sweep(
     )
     csv_path = os.path.join(out_dir, RESULTS_CSV)
     designs = sweep.designs()
-    diagnose = Diagnosis(sweep.finger, sweep.mode)
-    done = _resume(sweep, csv_path, designs, diagnose)
+    have = _resume(sweep, csv_path, designs, Diagnosis(sweep.finger, sweep.mode))
+    done = int(have.sum())
     if progress is not None and 0 < done < sweep.size:
         print(f"  ... resuming: {done} of {sweep.size} designs are in {csv_path}", file=progress)
-    bar = _progress_bar(sweep.size, done, progress)
-    failed = 0
-    with bar:
-        if done < sweep.size:
-            with open(csv_path, "a", encoding="utf-8", newline="") as fh:
-                for chunks, (first, res) in enumerate(_batches(sweep, designs, done), start=1):
-                    fh.write(_rows(sweep, first, res, _reasons(res, diagnose)))
-                    fh.flush()
-                    os.fsync(fh.fileno())
-                    bar.update(first + res.size - done)
-                    done = first + res.size
-                    failed += int(np.sum(res.status != "converged"))
-                    bar.set_postfix_str(f"{failed} not converged")
-                    if after_chunk is not None:
-                        after_chunk(done)
-                    if max_chunks is not None and chunks >= max_chunks:
-                        break
-    figure = None
+    work = SweepWork(sweep, chunk_size(sweep))
+    todo = chunks(sweep.size, work.per_chunk, have)[:max_chunks]
+    tally = _Tally()
+    with _progress_bar(sweep.size, done, progress) as bar, _appending(csv_path, todo) as fh:
+        for landed in engine.map_unordered(solve_chunk, work, todo):
+            tally.add(landed)
+            if landed.error is None:
+                rows = landed.value
+                fh.write(rows.text)
+                fh.flush()
+                os.fsync(fh.fileno())
+                have[list(rows.indices)] = True
+                bar.update(len(rows.indices))
+            bar.set_postfix_str(tally.postfix())
+            if landed.error is None and after_chunk is not None:
+                after_chunk(int(have.sum()))
+    return _finish(sweep, out_dir, source, have, plot, parquet, tally)
+
+
+class _Tally:
+    """A run's chunks as they land: designs not converged, chunks that failed for good,
+    and each worker's times (the progress bar's postfix)."""
+
+    def __init__(self):
+        self.not_converged = 0
+        self.failed: list[FailedChunk] = []
+        self.workers: dict[str, WorkerTime] = {}
+
+    def add(self, landed) -> None:
+        if landed.error is not None:
+            self.failed.append(FailedChunk(tuple(landed.item), landed.error))
+            return
+        self.not_converged += sum(s != "converged" for s in landed.value.status)
+        t = self.workers.get(landed.worker) or WorkerTime()
+        first = landed.seconds if landed.first else t.first_seconds
+        self.workers[landed.worker] = WorkerTime(t.chunks + 1, t.seconds + landed.seconds, first)
+
+    def postfix(self) -> str:
+        text = f"{self.not_converged} not converged"
+        if len(self.workers) > 1 or self.failed:
+            text += f", {len(self.workers)} workers"
+        if self.failed:
+            text += f", {len(self.failed)} chunks failed"
+        return text
+
+
+@contextlib.contextmanager
+def _appending(csv_path: str, todo):
+    """The CSV open for appending rows (nothing opened when there is nothing to do)."""
+    if not todo:
+        yield None
+        return
+    with open(csv_path, "a", encoding="utf-8", newline="") as fh:
+        yield fh
+
+
+def _finish(sweep, out_dir, source, have, plot, parquet, tally: _Tally) -> SweepRun:
+    """After the chunks: the CSV sorted, the manifest marked finished, the figure and the
+    Parquet file, once every design has its row."""
+    csv_path = os.path.join(out_dir, RESULTS_CSV)
+    figure = table = None
+    done = int(have.sum())
+    if done == sweep.size:
+        _sort_rows(csv_path)
     data = read_results(csv_path)
     if done == sweep.size:
         fio.write_atomic(
@@ -312,34 +382,36 @@ def run_sweep(
         if plot and np.any(drawn):  # (else the figure would be empty axes)
             figure = os.path.join(out_dir, FIGURE)
             plot_sweep(sweep, data, figure)
+        if parquet:
+            table = _write_parquet(data, sweep.columns, os.path.join(out_dir, PARQUET))
     names, counts = np.unique(data["status"].astype(str), return_counts=True)
-    return SweepRun(done, sweep.size, csv_path, figure, dict(zip(names.tolist(), counts.tolist())))
+    counts = dict(zip(names.tolist(), counts.tolist()))
+    failed = tuple(tally.failed)
+    return SweepRun(done, sweep.size, csv_path, figure, counts, failed, tally.workers, table)
 
 
-def _batches(sweep: Sweep, designs, done: int):
-    """The sweep's results from design `done` on, chunk by chunk: grasps when the finger
-    file has a [grasp] table, else solves."""
-    if sweep.settings.grasp is not None:
-        return iter_grasps(
-            sweep.finger,
-            designs,
-            sweep.outputs,
-            grasp_kwargs=sweep.settings.grasp.grasp_kwargs(),
-            release_kwargs={"step": sweep.settings.grasp.pull_step},
-            mode=sweep.mode,
-            chunk_size=sweep.chunk_size or GRASP_CHUNK,
-            start=done,
-        )
-    return iter_batch(
-        sweep.finger,
-        designs,
-        sweep.outputs,
-        mode=sweep.mode,
-        chunk_size=sweep.chunk_size,
-        integrator=sweep.settings.integrator,
-        options=sweep.settings.options,
-        start=done,
-    )
+PARQUET_HINT = "pip install 'finray_jax[ray]' (or pyarrow alone)"
+
+
+def _need_pyarrow() -> None:
+    try:
+        import pyarrow  # noqa: F401
+    except ImportError:
+        raise SweepError(f"results.parquet needs pyarrow, not installed: {PARQUET_HINT}") from None
+
+
+def _write_parquet(data, columns, path: str) -> str:
+    """The sorted results as a Parquet table (atomically: a temporary file renamed)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    cols = {n: data[n].tolist() if n in TEXT_COLUMNS else data[n] for n in columns}
+    cols["index"] = data["index"].astype(np.int64)
+    table = pa.table(cols)
+    tmp = f"{path}.{os.getpid()}.tmp"
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+    return path
 
 
 TEXT_COLUMNS = ("status", "reason")

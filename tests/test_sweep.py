@@ -273,6 +273,7 @@ def test_reasons_round_trip_through_the_csv(sweep_file, tmp_path):
     """A reason with commas and quotes is quoted in the CSV, read back as written, and a
     resume counts its row (no solve)."""
     from finray_jax._solution import RESULTS
+    from finray_jax._sweep_chunks import rows_text, solver_reason
     from finray_jax.batch import INVALID, BatchResult
 
     sw = fsweep.load_sweep(sweep_file)
@@ -290,7 +291,7 @@ def test_reasons_round_trip_through_the_csv(sweep_file, tmp_path):
         iterations=np.asarray([0, 50, 30, 5]),
         max_residual=np.asarray([np.nan, 1.0, 1e-12, 1e-14]),
     )
-    reasons = ['a, "quoted", reason', *(fsweep._solver_reason(c) for c in codes[1:])]
+    reasons = ['a, "quoted", reason', *(solver_reason(c) for c in codes[1:])]
     assert reasons[1:] == [
         "nonlinear_divergence: Nonlinear solve diverged.",
         "beyond_limit_load: No equilibrium on the loading branch: the load is beyond the "
@@ -298,11 +299,12 @@ def test_reasons_round_trip_through_the_csv(sweep_file, tmp_path):
         "",
     ]
     path = tmp_path / "results.csv"
-    path.write_text(",".join(sw.columns) + "\n" + fsweep._rows(sw, 0, res, reasons))
+    path.write_text(",".join(sw.columns) + "\n" + rows_text(sw, range(4), res, reasons))
     data = fsweep.read_results(path)
     assert data["reason"].tolist() == reasons
     assert data["status"].tolist() == ["invalid", "failed", "beyond_limit_load", "converged"]
-    assert fsweep._resume(sw, str(path), d, Diagnosis(sw.finger, sw.mode)) == 4
+    have = fsweep._resume(sw, str(path), d, Diagnosis(sw.finger, sw.mode))
+    assert have[:4].all() and not have[4:].any()
 
 
 def test_the_reason_of_an_invalid_design_names_the_rule_or_the_topology_change():
