@@ -4,7 +4,8 @@ PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# The openseespy reference solver (the `bench` extra) and the system BLAS/LAPACK it loads.
+# The openseespy reference solver (the `bench` extra) and the system BLAS/LAPACK it loads,
+# and Ray (the `ray` extra) for the tests on a local Ray cluster.
 REFERENCE := $(VENV)/.installed-reference
 # Test processes (pytest-xdist; whole files per process, as they share compiled programs).
 # Each holds up to ~5 GB; 0 runs the suite in this process.
@@ -27,7 +28,7 @@ $(REFERENCE): $(STAMP)
 	  else \
 	    echo "openseespy needs the system BLAS/LAPACK (Debian: apt-get install libblas3 liblapack3)"; exit 1; \
 	  fi; }
-	$(BIN)/python -m pip install -q -e ".[test,bench]"
+	$(BIN)/python -m pip install -q -e ".[test,bench,ray]"
 	touch $(REFERENCE)
 
 demo: $(STAMP)
@@ -39,7 +40,7 @@ demo: $(STAMP)
 # script and notebook processes they start share one persistent compilation cache.
 TEST_CACHE ?= $(CURDIR)/.cache/test-xla
 test: $(REFERENCE)
-	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat
+	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat --require ray
 
 # The developers' subset: no slow and no openseespy-re-running tests.
 test-fast: $(STAMP)
