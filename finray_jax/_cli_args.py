@@ -61,6 +61,16 @@ def _positive_float(text: str) -> float:
     return x
 
 
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
+    return n
+
+
 def _figure_path(text: str) -> str:
     """A figure file name whose extension matplotlib can write (checked before solving)."""
     from matplotlib.backend_bases import FigureCanvasBase
@@ -298,13 +308,21 @@ def _add_engine_options(p) -> None:
         "this machine for the run)",
     )
     g.add_argument(
-        "--workers", type=int, default=None, metavar="N", help="Ray tasks running at once"
+        "--workers", type=_positive_int, default=None, metavar="N", help="Ray tasks running at once"
     )
     g.add_argument(
-        "--task-cpus", type=float, default=None, metavar="N", help="CPUs per Ray task (default 1)"
+        "--task-cpus",
+        type=_nonnegative_float,
+        default=None,
+        metavar="N",
+        help="CPUs per Ray task (default 1)",
     )
     g.add_argument(
-        "--task-gpus", type=float, default=None, metavar="N", help="GPUs per Ray task (default 0)"
+        "--task-gpus",
+        type=_nonnegative_float,
+        default=None,
+        metavar="N",
+        help="GPUs per Ray task (default 0)",
     )
     g.add_argument(
         "--cache-dir",

@@ -139,6 +139,10 @@ def engine_from_args(args):
     """The engine the --engine options name (an EngineError names a bad setting)."""
     from .engines import engine_named, require_ray
 
+    ray_only = ("address", "workers", "task_cpus", "task_gpus", "cache_dir")
+    given = [f"--{k.replace('_', '-')}" for k in ray_only if getattr(args, k) is not None]
+    if args.engine == "local" and given:
+        raise UserError(f"{', '.join(given)}: options of --engine ray (the engine is local)")
     if args.engine == "ray":
         require_ray()
     return engine_named(

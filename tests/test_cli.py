@@ -22,6 +22,7 @@ from finray_jax import cli
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 REF_A = str(ROOT / "examples" / "ref_a.toml")
+SWEEP = str(ROOT / "examples" / "sweep_clamp.toml")
 
 SOLUTION_KEYS = {
     "finray_jax_version",
@@ -248,6 +249,11 @@ def test_validate_bad_file(tmp_path, capsys):
             ["clamp-study", "--closing", "5", "--actuator-force", "15"],
             "--closing 5 and --actuator-force 15: give one",
         ),
+        (["sweep", SWEEP, "--out", "x", "--workers", "2"], "--workers: options of --engine ray"),
+        (["clamp-study", "--address", "auto"], "--address: options of --engine ray"),
+        (["sweep", SWEEP, "--out", "x", "--engine", "ray", "--workers", "0"], "must be >= 1"),
+        (["sweep", SWEEP, "--out", "x", "--engine", "ray", "--task-cpus", "-1"], "must be >= 0"),
+        (["sweep", SWEEP, "--out", "x", "--engine", "dask"], "invalid choice: 'dask'"),
     ],
 )
 def test_bad_options_are_refused_before_any_solve(argv, message):
