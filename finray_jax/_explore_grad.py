@@ -1,0 +1,110 @@
+"""The design explorer's sensitivities: at a solved state, the derivatives of the
+equilibrium's unknowns and of every objective with respect to every design value on the
+page, in one compiled program per topology (forward mode through the implicit function
+theorem: one factorisation, a back substitution per value).
+
+They serve twice: the objectives' gradients are the page's "which way is better" bars,
+and the unknowns' derivatives predict the next equilibrium when a control moves (Newton
+then starts from the tangent's prediction, not from the previous equilibrium).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._contact_result import contact_result
+from ._explore_design import Choices, design_values, finger_of
+from ._grasp_inputs import with_objects_moved, with_stiffness
+from ._solve import direct_core
+from .design import OUTPUTS
+
+# The objectives, in the order of the program's outputs.
+OBJECTIVES = ("contact force", "tip displacement", "largest strain")
+HOLDING = "holding force"  # (on request: the release trace's peak)
+
+
+@dataclasses.dataclass
+class Sensitivities:
+    """At values x (names): the unknowns Y, the objectives, and their derivatives."""
+
+    choices: Choices
+    names: tuple
+    x: np.ndarray
+    unknowns: np.ndarray
+    objectives: np.ndarray  # (len(OBJECTIVES),); NaN where it does not apply
+    d_unknowns: np.ndarray  # (n_unknowns, len(names))
+    d_objectives: np.ndarray  # (len(OBJECTIVES), len(names))
+
+    def gradient(self, objective: str) -> dict:
+        i = OBJECTIVES.index(objective)
+        return dict(zip(self.names, self.d_objectives[i].tolist()))
+
+    def predict(self, values: dict) -> np.ndarray:
+        """The unknowns at other values, to first order."""
+        dx = np.asarray([float(values[n]) for n in self.names]) - self.x
+        return self.unknowns + self.d_unknowns @ dx
+
+
+def tip_displacement(sol):
+    d = sol.tip.displacement
+    return jnp.sqrt(d[0] ** 2 + d[2] ** 2 + 1e-30)
+
+
+@eqx.filter_jit
+def _sensitivities(static, base, loads, fixed, stiffness, x, y0):
+    topo, integrator, options, choices, names, direction = static
+    w = jnp.asarray(direction, jnp.float64)
+
+    def outputs(x):
+        values = {**fixed, **dict(zip(names, x))}
+        finger = finger_of(base, choices, values, loads)
+        if choices.mode == "grasp":
+            finger = with_stiffness(finger, *stiffness)
+            finger = with_objects_moved(finger, -values["closing"] * w)
+        sol, _, _ = direct_core(topo, integrator, options, finger, y0, jnp.zeros(()))
+        force = jnp.full((), jnp.nan)
+        if choices.mode == "grasp":
+            force = contact_result(finger, sol, w).normal_force
+        objs = jnp.stack([force, tip_displacement(sol), OUTPUTS["max_strain"](sol, finger)])
+        out = (sol.unknowns, objs)
+        return out, out
+
+    (d_y, d_obj), (y, obj) = jax.jacfwd(outputs, has_aux=True)(x)
+    return y, obj, d_y, d_obj
+
+
+def sensitivities(explorer, state) -> Sensitivities:
+    """The sensitivities at a solved state of `explorer` (`_explore_model.Explorer`)."""
+    choices: Choices = state.choices
+    names = tuple(design_values(choices))
+    fixed = {k: jnp.asarray(float(v), jnp.float64) for k, v in state.values.items()}
+    if choices.mode == "grasp":
+        fixed["closing"] = jnp.asarray(float(state.closing), jnp.float64)
+    prog = explorer.program(choices)
+    ks = prog.stiffness if prog.stiffness is not None else (0.0, 0.0, 0.0)
+    static = (
+        state.topology,
+        explorer.integrator,
+        explorer.options,
+        choices,
+        names,
+        tuple(float(v) for v in explorer.direction),
+    )
+    x = np.asarray([float(fixed[n]) for n in names])
+    y, obj, d_y, d_obj = _sensitivities(
+        static,
+        prog.base,
+        explorer.loads,
+        fixed,
+        jnp.asarray(ks, jnp.float64),
+        jnp.asarray(x),
+        state.solution.unknowns,
+    )
+    return Sensitivities(
+        choices, names, x, np.asarray(y), np.asarray(obj), np.asarray(d_y), np.asarray(d_obj)
+    )
