@@ -373,6 +373,32 @@ def _add_optimize_parser(sub):
     )
 
 
+def _port(text: str) -> int:
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"a port lies in 0..65535, got {text!r}")
+    return port
+
+
+def _add_explore_parser(sub):
+    ex = sub.add_parser(
+        "explore",
+        help="a design explorer in the browser (needs finray_jax[explore])",
+        description="Start a local web app: move a control, see the grasp (or the load "
+        "case) change, and the gradient of an objective in every design value. Default "
+        "finger: Finger-1 with the modified adaptor on the 18 mm cylinder. Everything is "
+        "served locally (no internet). Ctrl-C stops it. See docs/explorer.md.",
+    )
+    ex.add_argument("finger", metavar="FINGER.toml", nargs="?", default=None)
+    ex.add_argument(
+        "--port", type=_port, default=5006, help="local port (default 5006; 0: a free one)"
+    )
+    ex.add_argument("--no-browser", action="store_true", help="print the address, open no browser")
+
+
 # In the order `finray --help` lists the commands.
 _COMMAND_PARSERS = (
     _add_solve_parser,
@@ -384,6 +410,7 @@ _COMMAND_PARSERS = (
     _add_clamp_study_parser,
     _add_sweep_parser,
     _add_optimize_parser,
+    _add_explore_parser,
 )
 
 

@@ -159,6 +159,15 @@ class Explorer:
             self.state = state
         return state
 
+    def solve_aside(self, choices: Choices, values: dict) -> State:
+        """Solve a design from scratch (the closing path) without making it the state."""
+        kept = self.state, self.sensitivities
+        self.state = self.sensitivities = None
+        try:
+            return self.solve(choices, values)
+        finally:
+            self.state, self.sensitivities = kept
+
     # ----------------------------------------------------------------------------------
 
     def _solve_loads(self, prog, choices, values, finger, prev) -> State:

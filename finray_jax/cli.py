@@ -1,5 +1,5 @@
 """The `finray` command line: solve, limit, validate, demo, grasp, compare, clamp-study,
-sweep and optimize. See docs/cli.md.
+sweep, optimize and explore. See docs/cli.md.
 
 Exit codes: 0 converged (or limit found, or file valid), 1 user error (bad or missing
 file, bad option), 2 the load lies beyond the finger's limit load, 3 the solve failed (a
@@ -9,8 +9,9 @@ This module is the entry point (`main`): it parses the arguments (`_cli_args`), 
 the run (compilation cache, device), dispatches to the command and turns errors into exit
 codes. It holds the commands built on `_solve`, the timed solve of one finger file
 (`solve` and `demo`); the others live beside it: `_cli_finger` (limit, validate),
-`_cli_grasp` (grasp), `_cli_studies` (compare, clamp-study) and `_cli_runs` (sweep,
-optimize). The JSON documents of grasps come from the library's `finray_jax.report`.
+`_cli_grasp` (grasp), `_cli_studies` (compare, clamp-study), `_cli_runs` (sweep,
+optimize) and `_cli_explore` (explore). The JSON documents of grasps come from the
+library's `finray_jax.report`.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from ._cli_common import EXIT_USER as EXIT_USER
 from ._cli_common import STATUS_EXIT as STATUS_EXIT
 from ._cli_common import UserError as UserError
 from ._cli_common import compiling, progress, set_quiet, solver_name
+from ._cli_explore import explore_command
 from ._cli_finger import (
     check_resolution,
     crossbeam_table,
@@ -212,6 +214,7 @@ COMMANDS = {
     "demo": _cmd_demo,
     "sweep": sweep_command,
     "optimize": optimize_command,
+    "explore": explore_command,
 }
 
 
