@@ -5,6 +5,8 @@ import math
 import os
 import sys
 
+from .engines import engine_named, require_ray
+
 EXIT_OK, EXIT_USER, EXIT_BEYOND, EXIT_FAILED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130  # (128 + SIGINT, as a shell reports it)
 STATUS_EXIT = {
@@ -137,8 +139,6 @@ def say_interrupted(path: str, what: str, *, counted: bool = True) -> None:
 
 def engine_from_args(args):
     """The engine the --engine options name (an EngineError names a bad setting)."""
-    from .engines import engine_named, require_ray
-
     ray_only = ("address", "workers", "task_cpus", "task_gpus", "cache_dir")
     given = [f"--{k.replace('_', '-')}" for k in ray_only if getattr(args, k) is not None]
     if args.engine == "local" and given:

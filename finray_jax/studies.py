@@ -276,24 +276,9 @@ def clamp_study(
     work = _ClampWork(finger, dia, lc, float(support_length), actuator_force, closing)
     work = dataclasses.replace(work, holding=holding, friction=friction, pull_step=pull_step)
 
-    def todo():  # (each grasp announced as it is taken)
-        for i, j in zip(*np.nonzero(~solved)):
-            say(f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm")
-            yield int(i), int(j)
-
-    for landed in (engine or LocalEngine()).map_unordered(clamp_cell, work, todo()):
-        i, j = landed.item
-        where = f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm"
-        if landed.error is not None:
-            say(f"{where}: its task failed ({landed.error}); run the study again to retry it")
-            continue
-        for key, value in landed.value.items():
-            if key in cells:
-                cells[key][i, j] = value
-        if landed.value["why"]:
-            say(f"{where}: no grasp ({landed.value['why']})")
-        elif holding:
-            say(f"{dia[i]:g} mm object: release trace (mu = {friction:g}) done")
+    for (i, j), value in _grasped_cells(work, solved, engine, say):
+        for key in cells:
+            cells[key][i, j] = value[key]
         solved[i, j] = True
         if record is not None:
             keep()
@@ -327,6 +312,29 @@ class _ClampWork:
     holding: bool = False
     friction: float = 0.0
     pull_step: float = 2.0
+
+
+def _grasped_cells(work: _ClampWork, solved, engine, say):
+    """((i, j), values) of each grasp of the study not yet solved, as it lands on the
+    engine (each announced as it is taken; one whose task failed is said and left)."""
+    dia, lc = work.diameters, work.clamp_lengths
+
+    def todo():
+        for i, j in zip(*np.nonzero(~solved)):
+            say(f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm")
+            yield int(i), int(j)
+
+    for landed in (engine or LocalEngine()).map_unordered(clamp_cell, work, todo()):
+        i, j = landed.item
+        where = f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm"
+        if landed.error is not None:
+            say(f"{where}: its task failed ({landed.error}); run the study again to retry it")
+            continue
+        if landed.value["why"]:
+            say(f"{where}: no grasp ({landed.value['why']})")
+        elif work.holding:
+            say(f"{dia[i]:g} mm object: release trace (mu = {work.friction:g}) done")
+        yield (i, j), landed.value
 
 
 def clamp_cell(work: _ClampWork, item) -> dict:

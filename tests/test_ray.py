@@ -34,12 +34,12 @@ BIN = pathlib.Path(sys.executable).parent
 FINRAY = shutil.which("finray", path=str(BIN))
 RAY = shutil.which("ray", path=str(BIN))
 
-# A small grasp sweep: Finger-1 on the modified adaptor closing 6 mm on the 18 mm cylinder
-# (examples/grasp_finger1_modified.toml), four back-beam clamp lengths, one grasp a chunk,
-# with the holding force of each (the release trace, pulled in 3 mm steps).
+# Small grasp sweeps: Finger-1 on the modified adaptor closing 6 mm on the 18 mm cylinder
+# (examples/grasp_finger1_modified.toml), back-beam clamp lengths in one-grasp chunks;
+# the contact alone, or with the holding force (release traces pulled in 4 mm steps).
 GRASP_SWEEP = """
-finger = "{finger}"
-outputs = ["contact.normal_force", "contact.length", "max_strain", "release.peak"]
+finger = "finger.toml"
+outputs = {outputs}
 chunk_size = 1
 
 [sampling]
@@ -48,8 +48,9 @@ kind = "grid"
 [[design]]
 name = "adaptor.back_clamp_length"
 range = [16.5, 31.0]
-points = 4
+points = {points}
 """
+CONTACT = ["contact.normal_force", "contact.length", "max_strain"]
 
 
 def _free_port() -> int:
@@ -121,16 +122,21 @@ def assert_same_rows(got, want) -> None:
                 )
 
 
-@pytest.fixture(scope="module")
-def grasp_sweep(tmp_path_factory):
-    """The small grasp sweep (a file beside a copy of its finger) and its local results."""
-    d = tmp_path_factory.mktemp("grasp_sweep")
-    shutil.copy(EXAMPLES / "grasp_finger1_modified.toml", d / "finger.toml")
-    (d / "sweep.toml").write_text(GRASP_SWEEP.format(finger="finger.toml"))
+def _local_grasp_sweep(d: pathlib.Path, outputs, points: int):
+    """A grasp sweep written in d beside its finger, and the CSV of its local run."""
+    finger = (EXAMPLES / "grasp_finger1_modified.toml").read_text()
+    (d / "finger.toml").write_text(finger.replace("pull_step = 2.0 ", "pull_step = 4.0 "))
+    (d / "sweep.toml").write_text(GRASP_SWEEP.format(outputs=outputs, points=points))
     sw = fsweep.load_sweep(d / "sweep.toml")
     local = fsweep.run_sweep(sw, d / "local", plot=False)
     assert local.finished and local.converged == sw.size
     return sw, local.csv
+
+
+@pytest.fixture(scope="module")
+def grasp_sweep(tmp_path_factory):
+    """Three grasps, the contact alone, and the local engine's results."""
+    return _local_grasp_sweep(tmp_path_factory.mktemp("grasp"), CONTACT, 3)
 
 
 @pytest.fixture(scope="module")
@@ -158,13 +164,15 @@ def test_the_clamp_sweep_on_ray_equals_the_local_engine(cluster, cache, clamp_sw
     assert table["status"] == data["status"].tolist()
 
 
-def test_a_grasp_sweep_on_ray_equals_the_local_engine(cluster, cache, grasp_sweep, tmp_path):
-    """Four one-grasp chunks on two workers land in any order; the CSV is sorted."""
-    sw, local_csv = grasp_sweep
+def test_a_holding_force_sweep_on_ray_equals_the_local_engine(cluster, cache, tmp_path):
+    """Two one-grasp chunks with their release traces, on two workers, land in any
+    order; the CSV is sorted."""
+    sw, local_csv = _local_grasp_sweep(tmp_path, [*CONTACT, "release.peak"], 2)
     run = fsweep.run_sweep(sw, tmp_path / "ray", engine=_engine(cluster, cache), plot=False)
     assert run.finished and not run.failed_chunks
     assert_same_rows(run.csv, local_csv)
-    assert len(run.workers) == 2 and sum(t.chunks for t in run.workers.values()) == 4
+    assert sum(t.chunks for t in run.workers.values()) == 2
+    assert np.all(fsweep.read_results(run.csv)["release.peak"] > 0)
 
 
 def test_the_clamp_study_on_ray_equals_the_local_engine(cluster, cache):
@@ -230,7 +238,7 @@ def test_a_chunk_that_fails_for_good_is_reported_and_the_rest_completes(
     cluster, cache, grasp_sweep, tmp_path
 ):
     """No retries: the killed worker's chunk is reported with its design index, the other
-    three designs are written; the same sweep run again solves that one design."""
+    designs are written; the same sweep run again solves that one design."""
     sw, local_csv = grasp_sweep
     killer = _Killer()
     killer.start()

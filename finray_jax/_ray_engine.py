@@ -1,19 +1,82 @@
-"""`RayEngine`'s mechanics: connect to (or start) a Ray cluster, run each item as a Ray
-Core task, keep `workers` of them running, and yield each as it lands. Imported only when
-a RayEngine runs (it imports ray)."""
+"""`RayEngine`: the items of a sweep or a study as Ray Core tasks on a cluster. It
+connects to (or starts) the cluster, keeps `workers` tasks running and yields each as it
+lands. Ray is imported when a RayEngine runs, never before."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from collections.abc import Callable, Iterable, Iterator
 
 from ._cache import enable_compilation_cache
-from .engines import EngineError, Landed, RayEngine, require_ray, run_item
+from ._engine_core import EngineError, Landed, require_ray, run_item
 
-require_ray()  # (a clear line instead of the import's traceback)
-import ray  # noqa: E402
-import ray.exceptions  # noqa: E402
+
+def _ray():
+    """The ray module (an EngineError, saying how to install it, when it is missing)."""
+    require_ray()
+    import ray
+    import ray.exceptions
+
+    return ray
+
+
+def _positive_int(name: str, value, allow_none: bool = True):
+    if value is None and allow_none:
+        return
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise EngineError(f"{name} must be a positive integer, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class RayEngine:
+    """Items as Ray Core tasks, at most `workers` at a time.
+
+    address: a running cluster ("auto": the one this machine belongs to, or
+        "HOST:PORT" of its head); None: $RAY_ADDRESS if set, else a Ray instance started
+        on this machine for this run (and stopped after it).
+    workers: tasks running at once (None: as many as the cluster's CPUs (or GPUs, with
+        task_gpus) allow).
+    task_cpus, task_gpus: what each task asks of its node (a GPU task finds its GPU as
+        JAX's default device).
+    cache_dir: JAX's persistent compilation cache for the workers, e.g. on storage every
+        node shares, so that a worker loads what another compiled (None: each worker's
+        own $FINRAY_CACHE_DIR or default).
+    max_retries: how often Ray re-runs a task whose worker process died (killed, out of
+        memory, node lost); after that the item lands with its error.
+    """
+
+    address: str | None = None
+    workers: int | None = None
+    task_cpus: float = 1.0
+    task_gpus: float = 0.0
+    cache_dir: str | None = None
+    max_retries: int = 3
+
+    name = "ray"
+
+    def __post_init__(self):
+        _positive_int("workers", self.workers)
+        for key in ("task_cpus", "task_gpus"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+                raise EngineError(f"{key} must be a non-negative number, got {v!r}")
+        if not (self.task_cpus > 0 or self.task_gpus > 0):
+            raise EngineError("a task must ask for CPUs or GPUs: task_cpus and task_gpus are 0")
+        if not isinstance(self.max_retries, int) or self.max_retries < 0:
+            raise EngineError(f"max_retries must be a whole number >= 0, got {self.max_retries!r}")
+        if self.address is not None and not str(self.address).strip():
+            raise EngineError(f"address must be 'auto' or HOST:PORT, got {self.address!r}")
+
+    def describe(self) -> str:
+        where = self.address or os.environ.get("RAY_ADDRESS") or "a Ray instance on this machine"
+        return f"Ray ({where})"
+
+    def map_unordered(self, work: Callable, shared, items: Iterable) -> Iterator[Landed]:
+        """Each item as a task, `workers` at a time, yielded as it lands (see the class)."""
+        return _map_unordered(self, work, shared, items)
+
 
 _WAIT_S = 0.25  # how long the driver blocks in ray.wait (so that Ctrl-C is seen at once)
 _prepared = False  # this worker process has set its compilation cache
@@ -31,6 +94,7 @@ def _task(work: Callable, shared, item):
 def _connect(engine: RayEngine) -> bool:
     """Connect this process to the engine's cluster; True when this run started it (or
     connected) and so disconnects after it, False when Ray was already initialised."""
+    ray = _ray()
     if ray.is_initialized():
         return False
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
@@ -64,7 +128,7 @@ def concurrency(engine: RayEngine) -> int:
     """Tasks to keep running: engine.workers, else what the cluster's resources allow."""
     if engine.workers is not None:
         return engine.workers
-    have = ray.cluster_resources()
+    have = _ray().cluster_resources()
     n = []
     if engine.task_cpus > 0:
         n.append(int(have.get("CPU", 0) // engine.task_cpus))
@@ -80,6 +144,7 @@ def concurrency(engine: RayEngine) -> int:
 
 def _failure(e: BaseException) -> str:
     """Why a task failed for good, in one line."""
+    ray = _ray()
     if isinstance(e, ray.exceptions.RayTaskError):
         cause = e.cause if e.cause is not None else e
         text = f"{type(cause).__name__}: {cause}"
@@ -92,9 +157,10 @@ def _failure(e: BaseException) -> str:
     return " ".join(text.split())[:400]
 
 
-def map_unordered(engine: RayEngine, work: Callable, shared, items: Iterable) -> Iterator[Landed]:
+def _map_unordered(engine: RayEngine, work: Callable, shared, items: Iterable) -> Iterator[Landed]:
     """Each item as a task, `concurrency(engine)` at a time, yielded as it lands. Leaving
     early (an interrupt, or the caller stops) cancels the running tasks."""
+    ray = _ray()
     owned = _connect(engine)
     running: dict = {}  # ObjectRef -> item
     try:
