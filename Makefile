@@ -28,19 +28,32 @@ $(REFERENCE): $(STAMP)
 	  else \
 	    echo "openseespy needs the system BLAS/LAPACK (Debian: apt-get install libblas3 liblapack3)"; exit 1; \
 	  fi; }
-	$(BIN)/python -m pip install -q -e ".[test,bench,ray]"
+	$(BIN)/python -m pip install -q -e ".[test,bench,ray,explore]"
 	touch $(REFERENCE)
+
+# Headless Chromium and its driver (Debian packages): the explorer's browser tests.
+BROWSER := $(VENV)/.installed-browser
+$(BROWSER): $(STAMP)
+	@{ command -v chromium && command -v chromedriver; } >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	  else \
+	    echo "the explorer's browser tests need Chromium (Debian: apt-get install chromium chromium-driver)"; exit 1; \
+	  fi; }
+	touch $(BROWSER)
 
 demo: $(STAMP)
 	$(BIN)/finray demo --out demo_output
 
 # Everything: the default and slow tests, the notebooks, the optimize/ scripts, `finray
-# demo`, and the comparisons with the openseespy reference (re-run as well; a missing
-# reference fails the run instead of skipping its tests). The test processes and the CLI,
+# demo`, the explorer in headless Chromium, and the comparisons with the openseespy
+# reference (re-run as well; a missing reference, Bokeh or selenium fails the run instead
+# of skipping its tests). The test processes and the CLI,
 # script and notebook processes they start share one persistent compilation cache.
 TEST_CACHE ?= $(CURDIR)/.cache/test-xla
-test: $(REFERENCE)
-	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat --require ray
+test: $(REFERENCE) $(BROWSER)
+	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat --require ray \
+	  --require bokeh --require selenium
 
 # The developers' subset: no slow and no openseespy-re-running tests.
 test-fast: $(STAMP)
