@@ -15,11 +15,12 @@ from ._finger import DistributedLoad, Finger, PointLoad, validate_finger
 from ._finger_file import OBJECT_KEYS
 from ._integrator import Integrator
 from ._options import AbstractLinearSolver
-from ._solve_settings import INTEGRATORS, SolveSettings, solver_option_fields
+from ._solve_settings import INTEGRATORS, GraspSettings, SolveSettings, solver_option_fields
 
 
 def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str:
-    """A finger (and optionally its solve settings) as a finger file.
+    """A finger (and optionally its solve settings, with its [grasp] table when they have
+    one) as a finger file.
 
     Values are written exactly (`load_finger` gives back equal arrays). Crossbeams are
     always written as explicit [[crossbeams]] tables.
@@ -40,6 +41,8 @@ def finger_to_toml(finger: Finger, settings: SolveSettings | None = None) -> str
     out += _loads_toml(finger)
     if settings is not None:
         out += _settings_toml(settings)
+    if settings is not None and settings.grasp is not None:
+        out += _grasp_toml(settings.grasp)
     return "\n".join(out).rstrip("\n") + "\n"
 
 
@@ -251,4 +254,22 @@ def _settings_toml(settings: SolveSettings) -> list[str]:
             out.append(f"{f.name} = {int(v)}")
         else:
             out.append(f"{f.name} = {_tf(v)}")
+    return out + [""]
+
+
+def _grasp_toml(gs: GraspSettings) -> list[str]:
+    """[grasp]: how the finger closes on its objects (the keys that are set)."""
+    out = ["[grasp]"]
+    if gs.closing is not None:
+        out.append(f"closing = {_tf(gs.closing)}")
+    if gs.actuator_force is not None:
+        out.append(f"actuator_force = {_tf(gs.actuator_force)}")
+    out += [
+        f"direction = {_tv(gs.direction)}",
+        f"symmetric = {'true' if gs.symmetric else 'false'}",
+        f"pull_step = {_tf(gs.pull_step)}",
+        f"release = {'true' if gs.release else 'false'}",
+    ]
+    if gs.friction is not None:
+        out.append(f"friction = {_tf(gs.friction)}")
     return out + [""]

@@ -662,6 +662,24 @@ def test_round_trip_everything():
     assert fio.finger_to_toml(back, back_settings) == text
 
 
+@pytest.mark.parametrize(
+    "grasp",
+    [
+        fio.GraspSettings(closing=6.5, pull_step=1.5, release=True, friction=0.3),
+        fio.GraspSettings(actuator_force=4.25, direction=(-0.6, -0.8), symmetric=False),
+    ],
+)
+def test_grasp_settings_round_trip(grasp):
+    """A finger with objects and its [grasp] table, written and read back, is the same
+    finger with the same grasp settings."""
+    finger, _ = fio.load_finger(str(ROOT / "examples" / "grasp_finger1_modified.toml"))
+    settings = fio.SolveSettings(mode="planar", grasp=grasp)
+    text = fio.finger_to_toml(finger, settings)
+    back, back_settings = fio.loads_finger(text)
+    assert_same_finger(finger, back)
+    assert back_settings.grasp == grasp
+
+
 def test_rotation_cap_switched_off_round_trips():
     """SolverOptions(max_rotation_step=None) (no cap) is written `false` and read back as
     None (left out, it would come back as the default cap, 0.2 rad)."""
