@@ -172,7 +172,8 @@ def test_a_holding_force_sweep_on_ray_equals_the_local_engine(cluster, cache, tm
     assert run.finished and not run.failed_chunks
     assert_same_rows(run.csv, local_csv)
     assert sum(t.chunks for t in run.workers.values()) == 2
-    assert np.all(fsweep.read_results(run.csv)["release.peak"] > 0)
+    peak = fsweep.read_results(run.csv)["release.peak"]  # (0: not held, a result too)
+    assert np.all(np.isfinite(peak) & (peak >= 0)) and np.any(peak > 0), peak
 
 
 def test_the_clamp_study_on_ray_equals_the_local_engine(cluster, cache):
