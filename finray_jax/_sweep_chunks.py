@@ -10,6 +10,7 @@ import dataclasses
 import io
 import math
 
+import jax
 import numpy as np
 
 from ._batch_data import INVALID, BatchResult, Diagnosis, one_line
@@ -29,8 +30,6 @@ def chunk_size(sweep: Sweep) -> int:
         return sweep.chunk_size
     if sweep.settings.grasp is not None:
         return GRASP_CHUNK
-    import jax
-
     return default_chunk_size(jax.devices()[0].platform)
 
 

@@ -42,12 +42,10 @@ from .engines import LocalEngine, RayEngine
 
 __all__ = ["Sweep", "SweepError", "load_sweep", "loads_sweep", "run_sweep"]
 
-RESULTS_CSV, MANIFEST, FIGURE, PARQUET = (
-    "results.csv",
-    "manifest.json",
-    "sweep.png",
-    "results.parquet",
-)
+RESULTS_CSV = "results.csv"
+MANIFEST = "manifest.json"
+FIGURE = "sweep.png"
+PARQUET = "results.parquet"
 
 
 # --------------------------------------------------------------------------------------
