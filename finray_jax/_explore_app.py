@@ -37,6 +37,15 @@ class Worker:
                 job()
             except Exception:  # (a job reports its own errors; this keeps the thread alive)
                 traceback.print_exc()
+            finally:
+                self.jobs.task_done()
+
+    def wait_idle(self, seconds: float) -> bool:
+        """Wait until every job handed over has finished (at most `seconds`)."""
+        t0 = time.monotonic()
+        while self.jobs.unfinished_tasks and time.monotonic() - t0 < seconds:
+            time.sleep(0.05)
+        return not self.jobs.unfinished_tasks
 
 
 class App:

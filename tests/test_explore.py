@@ -1,0 +1,336 @@
+"""`finray explore`: the design explorer's page in a real browser (headless Chromium driven
+by selenium), against the library's own answers.
+
+One server (in this process, on a free port) and one browser serve every test of the
+module; the page's models are read and set through BokehJS (`Bokeh.documents[0]`), which
+drives the same server callbacks as a drag. A screenshot of the page is saved under
+$FINRAY_TEST_ARTIFACTS (default tests/artifacts/). Without bokeh, selenium or Chromium
+the browser tests are skipped, unless `--require selenium` asks for them (`make test`).
+"""
+
+import asyncio
+import base64
+import json
+import math
+import os
+import pathlib
+import shutil
+import tempfile
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import finray_jax as fr
+from finray_jax import io as fio
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+MODIFIED = ROOT / "examples" / "grasp_finger1_modified.toml"
+ARTIFACTS = pathlib.Path(os.environ.get("FINRAY_TEST_ARTIFACTS") or ROOT / "tests" / "artifacts")
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-dev-shm-usage",
+)
+READY_S = 900  # the first design's compiles (a few minutes on a loaded 2-core machine)
+SOLVE_S = 300  # one change (a warm solve; a closing path where it falls back)
+LIMIT_S = 900  # the closing path up to the actuator force's peak (two minutes loaded)
+
+
+# --------------------------------------------------------------------------------------
+# The server and the browser (one each for the module)
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def server():
+    pytest.importorskip("bokeh")
+    from finray_jax._explore_app import App
+    from finray_jax._explore_server import address, start_server
+
+    finger, settings = fio.load_finger(MODIFIED)
+    app = App(finger, settings.grasp, str(MODIFIED), say=lambda m: None)
+    box, started = {}, threading.Event()
+
+    def run():
+        asyncio.set_event_loop(asyncio.new_event_loop())
+        box["server"] = start_server(app, port=0)
+        started.set()
+        box["server"].io_loop.start()
+
+    threading.Thread(target=run, name="explore-test-server", daemon=True).start()
+    assert started.wait(60), "the server did not start"
+    app.prepare()
+    yield app, address(box["server"])
+    app.worker.wait_idle(LIMIT_S)  # (no solve left running when the process ends)
+    srv = box["server"]
+    srv.io_loop.add_callback(srv.stop)
+    srv.io_loop.add_callback(srv.io_loop.stop)
+
+
+def _browser_or_skip(request):
+    required = "selenium" in request.config.getoption("--require")
+    webdriver = pytest.importorskip("selenium.webdriver")
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver = shutil.which("chromedriver")
+    if not (chromium and driver):
+        message = (
+            "needs Chromium and chromedriver (Debian: apt-get install chromium chromium-driver)"
+        )
+        if required:
+            pytest.fail(message)
+        pytest.skip(message)
+    return webdriver, chromium, driver
+
+
+@pytest.fixture(scope="module")
+def page(request, server):
+    webdriver, chromium, driver = _browser_or_skip(request)
+    app, url = server
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chromium
+    profile = tempfile.mkdtemp(prefix="finray-chromium-")
+    for flag in CHROMIUM_FLAGS + (f"--user-data-dir={profile}",):
+        opts.add_argument(flag)
+    browser = webdriver.Chrome(
+        service=webdriver.ChromeService(executable_path=driver), options=opts
+    )
+    browser.set_window_size(1500, 1500)
+    browser.get(url)
+    try:
+        _wait(browser, lambda: app.ready and len(_column(browser, "numbers", "value")) > 0, READY_S)
+        yield app, browser
+    finally:
+        browser.quit()
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def _wait(browser, ok, seconds):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        try:
+            if ok():
+                return
+        except Exception:  # (the page between two documents)
+            pass
+        time.sleep(0.2)
+    raise AssertionError(f"the page did not get there in {seconds} s: {_status(browser)}")
+
+
+_MODEL = "const m = Bokeh.documents[0].get_model_by_name(arguments[0]);"
+
+
+def _column(browser, source, column):
+    return browser.execute_script(
+        _MODEL + "const c = m.data[arguments[1]];"
+        "return Array.from(c, x => (x && x.length !== undefined && typeof x !== 'string')"
+        " ? Array.from(x) : x);",
+        source,
+        column,
+    )
+
+
+def _status(browser) -> str:
+    return browser.execute_script(_MODEL + "return m.text;", "status")
+
+
+def _set(browser, name, value):
+    browser.execute_script(_MODEL + "m.value = arguments[1];", name, value)
+
+
+# Click a button by its model name (its view's click(), as a mouse click does).
+_CLICK = """
+const find = (v, name) => {
+  if (v.model && v.model.name === name) { return v; }
+  for (const c of (v.child_views || [])) { const f = find(c, name); if (f) { return f; } }
+  return null;
+};
+for (const root of Object.values(Bokeh.index)) {
+  const v = find(root, arguments[0]);
+  if (v) { v.click(); return true; }
+}
+return false;
+"""
+
+
+def _click(browser, name):
+    assert browser.execute_script(_CLICK, name), f"no button {name!r} on the page"
+
+
+def _numbers(browser) -> dict:
+    names = _column(browser, "numbers", "name")
+    values = _column(browser, "numbers", "value")
+    return {n: (math.nan if v is None else float(v)) for n, v in zip(names, values)}
+
+
+def _download(browser, before=None) -> bytes:
+    _wait(browser, lambda: _column(browser, "download", "b64") not in ([], before), SOLVE_S)
+    return base64.b64decode(_column(browser, "download", "b64")[0])
+
+
+# --------------------------------------------------------------------------------------
+# Tests
+# --------------------------------------------------------------------------------------
+
+
+def test_moving_the_clamp_length_resolves_the_grasp_as_grasp_does(page, tmp_path):
+    """The contact force and the drawn finger change, and agree with `grasp` of the
+    design the page shows (its TOML download, solved on the page's segment table) to
+    1e-9; the download read back by `finray grasp` gives the same contact force."""
+    app, browser = page
+    before = _numbers(browser)
+    lines_before = _column(browser, "finger_lines", "xs")
+    _set(browser, "back_clamp_length", 24.0)
+    _wait(
+        browser,
+        lambda: (
+            _numbers(browser)["contact_force"] != before["contact_force"]
+            and "converged" in _status(browser)
+        ),
+        SOLVE_S,
+    )
+    after = _numbers(browser)
+    lines = _column(browser, "finger_lines", "xs"), _column(browser, "finger_lines", "ys")
+    assert lines[0][0] != lines_before[0]  # (the drawn front beam moved)
+    _click(browser, "download_toml")
+    text = _download(browser).decode()
+    finger, settings = fio.loads_finger(text)
+    assert float(finger.adaptor.back_clamp_length) == 24.0
+    state = app.explorer.state
+    g = fr.grasp(finger, **settings.grasp.grasp_kwargs(), topology=state.topology)
+    assert g.converged
+    assert abs(float(g.contact.normal_force) - after["contact_force"]) <= 1e-9
+    assert abs(float(g.contact.actuator_force) - after["actuator_force"]) <= 1e-9
+    front = np.asarray(g.solution.front.position)
+    np.testing.assert_allclose(lines[0][0], front[:, 0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(lines[1][0], front[:, 2], rtol=0, atol=1e-9)
+    # `finray grasp` on the file (cut for its own finger: the same cuts as the page's here)
+    path = tmp_path / "design.toml"
+    path.write_text(text)
+    from test_cli import run
+
+    out = tmp_path / "g.json"
+    code, stdout, err = run(["grasp", str(path), "--out", str(out)])
+    assert code == 0, stdout + err
+    doc = json.loads(out.read_text())
+    assert abs(doc["contact"]["normal_force"] - after["contact_force"]) <= 1e-9
+
+
+@pytest.mark.slow
+def test_an_actuator_force_past_the_limit_says_so_and_keeps_the_page(page):
+    """25 N is more than Finger-1 presses the 18 mm cylinder with (its force peaks near
+    18 N, at 12 mm of closing): the status says the load lies beyond the limit, the last
+    good design stays drawn, and the page goes on. (The closing path to the peak takes
+    tens of seconds.)"""
+    app, browser = page
+    good = _numbers(browser)
+    xs = _column(browser, "finger_lines", "xs")
+    _set(browser, "actuator_force", 25.0)
+    browser.execute_script(_MODEL + "m.active = 1;", "closing_kind")
+    _wait(browser, lambda: "beyond the limit load" in _status(browser), LIMIT_S)
+    assert "peaks near 18." in _status(browser)
+    assert _numbers(browser)["contact_force"] == good["contact_force"]
+    assert _column(browser, "finger_lines", "xs") == xs
+    browser.execute_script(_MODEL + "m.active = 0;", "closing_kind")
+    _wait(browser, lambda: "converged" in _status(browser), SOLVE_S)
+
+
+@pytest.mark.parametrize(
+    "value, words",
+    [("NaN", "finite number"), (55.0, "outside its bounds")],
+)
+def test_bad_values_are_refused_on_the_page(page, value, words):
+    app, browser = page
+    good = _numbers(browser)
+    browser.execute_script(
+        _MODEL + "m.value = (arguments[1] === 'NaN') ? NaN : arguments[1];",
+        "back_clamp_length",
+        value,
+    )
+    _wait(browser, lambda: "refused" in _status(browser), SOLVE_S)
+    status = _status(browser)
+    assert words in status and "back_clamp_length" in status, status
+    assert _numbers(browser)["contact_force"] == good["contact_force"]
+    _set(browser, "back_clamp_length", 24.0)
+    _wait(browser, lambda: "converged" in _status(browser), SOLVE_S)
+
+
+def test_gradient_bars_numbers_json_and_screenshot(page):
+    """The gradient of the contact force in every design value is drawn; the numbers'
+    JSON holds the page's numbers; a screenshot is kept as the test's artefact."""
+    app, browser = page
+    _wait(browser, lambda: len(_column(browser, "gradient", "scaled")) > 5, SOLVE_S)
+    names = _column(browser, "gradient", "name")
+    assert "back_clamp_length" in names and "E" in names
+    assert all(math.isfinite(x) for x in _column(browser, "gradient", "scaled"))
+    before = _column(browser, "download", "b64")
+    _click(browser, "download_json")
+    doc = json.loads(_download(browser, before))
+    assert doc["status"] == "converged"
+    assert doc["numbers"]["contact_force"] == _numbers(browser)["contact_force"]
+    assert set(doc["gradient"]["d_objective"]) == set(names)
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    shot = ARTIFACTS / "explore.png"
+    browser.save_screenshot(str(shot))
+    assert shot.stat().st_size > 20_000
+
+
+# --------------------------------------------------------------------------------------
+# Without a browser: the command line and the controls
+# --------------------------------------------------------------------------------------
+
+
+def test_explore_without_bokeh_says_how_to_install_it(monkeypatch):
+    import importlib.util
+
+    from test_cli import run
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "bokeh" else real(name, *a)
+    )
+    code, _, err = run(["explore", "--no-browser"])
+    assert code == 1 and "pip install 'finray_jax[explore]'" in err, err
+
+
+def test_explore_options_and_file_are_checked():
+    from test_cli import run
+
+    code, _, err = run(["explore", "--port", "70000"])
+    assert code == 1 and "--port" in err and "70000" in err
+    code, _, err = run(["explore", "no_such_finger.toml", "--no-browser"])
+    assert code == 1 and "no_such_finger.toml" in err
+
+
+def test_controls_refuse_values_naming_the_control():
+    from finray_jax._explore_design import Choices, ControlError, check_value
+
+    with pytest.raises(ControlError, match=r"back_clamp_length.*finite number"):
+        check_value("back_clamp_length", float("nan"))
+    with pytest.raises(ControlError, match=r"\(E\) = 99 MPa: outside its bounds 2\.\.60"):
+        check_value("E", 99.0)
+    with pytest.raises(ControlError, match="crossbeam_count = 0"):
+        Choices(crossbeam_count=0).checked()
+    assert check_value("E", "12.5") == 12.5
+
+
+def test_a_step_uphill_moves_the_steepest_control_by_two_percent_within_bounds():
+    pytest.importorskip("bokeh")
+    from finray_jax._explore_design import BY_NAME
+    from finray_jax._explore_page_tools import UPHILL_STEP, uphill
+
+    values = {"E": 12.0, "back_clamp_length": 39.9, "crossbeam_angle": 0.0}
+    grad = {"E": 0.5, "back_clamp_length": 10.0, "crossbeam_angle": -0.001}
+    new = uphill(grad, values)
+    assert new["back_clamp_length"] == BY_NAME["back_clamp_length"].hi  # (kept in bounds)
+    e = BY_NAME["E"]
+    step = UPHILL_STEP * (0.5 * (e.hi - e.lo)) / (10.0 * 40.0) * (e.hi - e.lo)
+    assert new["E"] == pytest.approx(round((12.0 + step) / e.step) * e.step)
+    assert new["crossbeam_angle"] <= 0.0
