@@ -14,6 +14,7 @@ from ._errors import FingerError
 from ._explore_design import Choices, ControlError, choices_of, values_of
 from ._explore_grad import sensitivities
 from ._explore_model import Explorer
+from ._explore_views import view_of
 from .design import DesignError
 
 # What a refused design raises: shown on the page as it is.
@@ -68,6 +69,7 @@ class App:
         self.preparing = "starting"
         self.error = ""
         self.first = None  # the first design's State
+        self.first_view = None  # and its View
         self.say = say
         self.prepare_seconds = float("nan")
 
@@ -87,6 +89,10 @@ class App:
                 raise FingerError(f"the first design did not converge: {state.message}")
             self.preparing = "compiling the gradients (sensitivities in every design value)"
             self.explorer.sensitivities = sensitivities(self.explorer, state)
+            # A slider's solve (from the previous equilibrium) and the view, compiled now
+            self.preparing = "compiling the warm-started solve and the views"
+            state = self.explorer.solve(self.choices, self.values)
+            self.first_view = view_of(state, self.explorer.symmetric)
             self.first = state
         except REFUSED as e:
             self.error = str(e)

@@ -52,7 +52,7 @@ from ._explore_page_tools import (
     status_html,
     uphill,
 )
-from ._explore_views import NUMBERS, view_of
+from ._explore_views import NUMBERS, status_of, view_of
 
 POLL_MS = 250  # how often a page waiting for the start-up's preparation looks again
 
@@ -71,6 +71,7 @@ class Page:
         self._figures()
         doc.title = "finray explore"
         doc.add_root(self._layout())
+        doc.add_root(self.download)  # (in no layout: a root of its own, for the browser)
         self._poll = doc.add_periodic_callback(self._await_ready, POLL_MS)
         self._await_ready()
 
@@ -113,7 +114,7 @@ class Page:
             title="objective", options=list(OBJECTIVES) + [HOLDING], value=OBJECTIVES[0],
             name="objective",
         )  # fmt: skip
-        self.objective.on_change("value", lambda *a: self._show_gradient())
+        self.objective.on_change("value", lambda attr, old, new: self._show_gradient())
         self.buttons = {}
         for name, label, fn in (
             ("holding", "compute holding force", self._on_holding),
@@ -155,7 +156,7 @@ class Page:
         b.xaxis.axis_label, b.yaxis.axis_label = "crossbeam (from the base)", "N"
         names = [ctl.name for ctl in CONTROLS]
         g = figure(
-            title="gradient x range (change across each control's range, to first order)",
+            title="gradient x range of each control",
             y_range=names[::-1], width=560, height=420, name="gradient_figure",
         )  # fmt: skip
         g.hbar(y="name", right="scaled", height=0.7, color="color", source=self.gradient)
@@ -171,7 +172,7 @@ class Page:
             ],
             width=420, height=220, index_position=None,
         )  # fmt: skip
-        self.compare = row(name="compare_row")
+        self.compare = row(Div(text=""), name="compare_row")
         self.side = column(p, b, table)
 
     def _layout(self):
@@ -206,7 +207,7 @@ class Page:
             )
             return
         self._enable(True)
-        self._show(app.first, view_of(app.first, app.explorer.symmetric), None)
+        self._show(app.first, app.first_view, None)
         self.sens = app.explorer.sensitivities
         self._show_gradient()
 
@@ -307,11 +308,9 @@ class Page:
                 "error", f"refused: {error} (the last good design stays drawn)"
             )
             return
+        kind, line = status_of(state)
+        self.status.text = status_html(kind, line)
         if view is None:
-            what = "beyond the limit load" if state.status == "beyond_limit_load" else state.status
-            self.status.text = status_html(
-                "error", f"{what}: {state.message} (the last good design stays drawn)"
-            )
             return
         self.state = state
         self.lines.data = view.lines
@@ -320,10 +319,6 @@ class Page:
         self.pressure.data = view.pressure
         self.cb.data = view.crossbeams
         self._show_numbers(view.numbers)
-        how = "one Newton solve from the last equilibrium" if state.how == "warm" else "full solve"
-        self.status.text = status_html(
-            "ok", f"{state.status} ({how}, {1e3 * state.seconds:.0f} ms)"
-        )
 
     def _show_numbers(self, numbers: dict) -> None:
         rows = [(label, numbers[key], unit) for key, label, unit in NUMBERS]
@@ -359,9 +354,7 @@ class Page:
             "scaled": np.asarray(scaled, float),
             "color": ["#2ca02c" if s >= 0 else "#d62728" for s in scaled],
         }
-        self.gradient_figure.title.text = (
-            f"d({objective}) x range of each control (change across the range, to first order)"
-        )
+        self.gradient_figure.title.text = f"d({objective}) x range of each control (first order)"
 
     # ----------------------------------------------------------------------------------
     # Buttons

@@ -236,7 +236,7 @@ def test_an_actuator_force_past_the_limit_says_so_and_keeps_the_page(page):
     browser.execute_script(_MODEL + "m.active = 1;", "closing_kind")
     _wait(browser, lambda: "beyond the limit load" in _status(browser), LIMIT_S)
     assert "peaks near 18." in _status(browser)
-    assert _numbers(browser)["contact_force"] == good["contact_force"]
+    assert abs(_numbers(browser)["contact_force"] - good["contact_force"]) <= 1e-9
     assert _column(browser, "finger_lines", "xs") == xs
     browser.execute_script(_MODEL + "m.active = 0;", "closing_kind")
     _wait(browser, lambda: "converged" in _status(browser), SOLVE_S)
@@ -257,7 +257,7 @@ def test_bad_values_are_refused_on_the_page(page, value, words):
     _wait(browser, lambda: "refused" in _status(browser), SOLVE_S)
     status = _status(browser)
     assert words in status and "back_clamp_length" in status, status
-    assert _numbers(browser)["contact_force"] == good["contact_force"]
+    assert _numbers(browser)["contact_force"] == good["contact_force"]  # (nothing solved)
     _set(browser, "back_clamp_length", 24.0)
     _wait(browser, lambda: "converged" in _status(browser), SOLVE_S)
 
