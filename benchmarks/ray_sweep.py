@@ -10,9 +10,11 @@ cluster of 1 CPU pinned to core 0) and with 2 workers (2 CPUs, cores 0 and 1). R
 wall time and designs/s, each worker's first chunk (its compile) apart from the steady
 chunks, steady designs/s, the scaling efficiency of 2 workers over 1, and the driver's
 cost of writing one chunk (append + fsync), the bound on how many chunks a driver takes
-per second.
+per second. The machine's own scaling is the in-run baseline: two local processes at
+once, one a core, each with half of the designs.
 
     python benchmarks/ray_sweep.py [--solve-n 2000] [--grasp-n 200] [--only solve|grasp]
+                                   [--pair-only]
 """
 
 import argparse
@@ -129,6 +131,27 @@ def _run(cmd, cores=None, env=None) -> str:
     return done.stdout
 
 
+def local_pair(text: str, n: int, per_chunk: int, work: pathlib.Path) -> dict:
+    """The machine's own scaling, without Ray: two local processes at once, one a core,
+    each with half of the designs (two seeds)."""
+    env = dict(os.environ, FINRAY_NO_CACHE="1")
+    procs = []
+    for k in (0, 1):
+        path = work.parent / f"{work.name}_half{k}.toml"  # (beside the finger files)
+        path.write_text(text.format(n=n // 2).replace("seed = 1", f"seed = {k + 1}"))
+        cmd = ["taskset", "-c", str(k), sys.executable, __file__, "--one", "local", str(path)]
+        cmd.append(str(work / f"half{k}"))
+        procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env))
+    t0 = time.perf_counter()
+    halves = [json.loads(p.communicate()[0].splitlines()[-1]) for p in procs]
+    wall = time.perf_counter() - t0
+    result = {"wall_s": wall, "halves": [_figures(h, n // 2, per_chunk) for h in halves]}
+    result["designs_per_s"] = n / wall
+    steady = [h["steady_designs_per_s"] for h in result["halves"]]
+    result["steady_designs_per_s"] = sum(steady)
+    return result
+
+
 def measure(sweep_file: pathlib.Path, n: int, per_chunk: int, work: pathlib.Path) -> dict:
     env = dict(os.environ, FINRAY_NO_CACHE="1", RAY_USAGE_STATS_ENABLED="0")
     me = [sys.executable, __file__, "--one"]
@@ -174,6 +197,11 @@ def main():
     ap.add_argument("--solve-n", type=int, default=2000)
     ap.add_argument("--grasp-n", type=int, default=200)
     ap.add_argument("--only", choices=("solve", "grasp"), default=None)
+    ap.add_argument(
+        "--pair-only",
+        action="store_true",
+        help="measure only the two local processes at once, added to the results file",
+    )
     ap.add_argument("--one", nargs=3, metavar=("ENGINE", "SWEEP", "OUT"), default=None)
     ap.add_argument("--address", default=None)
     ap.add_argument("--workers", type=int, default=None)
@@ -181,20 +209,28 @@ def main():
     if args.one is not None:
         args.engine, args.sweep, args.out = args.one
         return one_run(args)
-    from _common import machine, write
+    from _common import RESULTS, machine, write
 
     work = pathlib.Path(tempfile.mkdtemp(prefix="finray_ray_bench_"))
     for name in ("ref_a.toml", "grasp_finger1_modified.toml"):
         shutil.copy(ROOT / "examples" / name, work / name)
-    payload = {"machine": machine(), "driver_chunk_write_s": driver_write_cost()}
+    saved = RESULTS / "ray_sweep.json"
+    keep = (args.pair_only or args.only) and saved.exists()  # (other cases stay)
+    payload = json.loads(saved.read_text()) if keep else {}
+    payload.update(machine=machine(), driver_chunk_write_s=driver_write_cost())
     cases = {"solve": (SOLVE, args.solve_n, 100), "grasp": (GRASP, args.grasp_n, 10)}
     for name, (text, n, per_chunk) in cases.items():
         if args.only not in (None, name):
             continue
-        path = work / f"{name}.toml"
-        path.write_text(text.format(n=n))
+        (work / name).mkdir()
         print(f"{name} sweep, {n} designs:", flush=True)
-        payload[name] = {"n": n, "chunk": per_chunk, **measure(path, n, per_chunk, work / name)}
+        pair = local_pair(text, n, per_chunk, work / name)
+        print(f"  two local processes: {pair['designs_per_s']:.3f} designs/s", flush=True)
+        if not args.pair_only:
+            path = work / f"{name}.toml"
+            path.write_text(text.format(n=n))
+            payload[name] = {"n": n, "chunk": per_chunk, **measure(path, n, per_chunk, work / name)}
+        payload[name]["local_pair"] = pair
         print(json.dumps(payload[name], indent=1), flush=True)
     print(f"wrote {write('ray_sweep', payload)}")
     shutil.rmtree(work, ignore_errors=True)
