@@ -20,14 +20,11 @@ from bokeh.models import (
     Button,
     ColumnDataSource,
     CustomJS,
-    DataTable,
     Div,
-    NumberFormatter,
     RadioButtonGroup,
     Select,
     Slider,
     Spinner,
-    TableColumn,
 )
 from bokeh.plotting import figure
 
@@ -49,6 +46,7 @@ from ._explore_page_tools import (
     download_files,
     empty,
     figure_files,
+    numbers_html,
     status_html,
     uphill,
 )
@@ -71,7 +69,8 @@ class Page:
         self._figures()
         doc.title = "finray explore"
         doc.add_root(self._layout())
-        doc.add_root(self.download)  # (in no layout: a root of its own, for the browser)
+        for source in (self.download, self.numbers):  # (in no layout: roots of their own)
+            doc.add_root(source)
         self._poll = doc.add_periodic_callback(self._await_ready, POLL_MS)
         self._await_ready()
 
@@ -161,19 +160,9 @@ class Page:
         )  # fmt: skip
         g.hbar(y="name", right="scaled", height=0.7, color="color", source=self.gradient)
         self.gradient_figure = g
-        table = DataTable(
-            source=self.numbers,
-            columns=[
-                TableColumn(field="label", title="quantity", width=220),
-                TableColumn(
-                    field="value", title="value", formatter=NumberFormatter(format="0.00000")
-                ),
-                TableColumn(field="unit", title="unit", width=50),
-            ],
-            width=420, height=220, index_position=None,
-        )  # fmt: skip
+        self.table = Div(text="", name="numbers_table", width=420)
         self.compare = row(Div(text=""), name="compare_row")
-        self.side = column(p, b, table)
+        self.side = column(p, b, self.table)
 
     def _layout(self):
         controls = column(
@@ -322,6 +311,7 @@ class Page:
 
     def _show_numbers(self, numbers: dict) -> None:
         rows = [(label, numbers[key], unit) for key, label, unit in NUMBERS]
+        self.table.text = numbers_html(rows)
         self.numbers.data = {
             "name": [key for key, _, _ in NUMBERS],
             "label": [r[0] for r in rows],

@@ -55,6 +55,18 @@ def status_html(kind: str, text: str) -> str:
     )
 
 
+def numbers_html(rows) -> str:
+    """The numbers as an HTML table: (label, value, unit) rows; NaN shows as "-"."""
+    cells = []
+    for label, value, unit in rows:
+        v = "-" if value != value else f"{value:.6g}"
+        cells.append(
+            f"<tr><td>{html.escape(label)}</td><td style='text-align:right'>{v}</td>"
+            f"<td>{html.escape(unit)}</td></tr>"
+        )
+    return "<table style='border-spacing:12px 2px'>" + "".join(cells) + "</table>"
+
+
 def uphill(gradient: dict, values: dict) -> dict:
     """One projected gradient step in the controls' scaled coordinates u = (x - lo) /
     (hi - lo): the control with the largest scaled derivative moves UPHILL_STEP of its

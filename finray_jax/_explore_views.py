@@ -18,6 +18,7 @@ from ._explore_grad import OBJECTIVES
 from ._finger_toml import finger_to_toml
 from ._geometry import arc_point, geometry
 from ._objects import Circle, RoundedRectangle
+from ._solution import RESULTS
 from ._solve_settings import GraspSettings, SolveSettings
 from ._version import __version__
 from .design import OUTPUTS
@@ -118,6 +119,9 @@ NUMBERS = (
 )
 
 
+_max_strain = jax.jit(OUTPUTS["max_strain"])  # (many small operations: one program)
+
+
 def numbers_of(state) -> dict:
     sol, finger = state.solution, state.moved
     d = np.asarray(sol.tip.displacement)
@@ -128,10 +132,28 @@ def numbers_of(state) -> dict:
         "actuator_force": nan if c is None else float(c.actuator_force),
         "holding_force": nan if state.holding is None else float(state.holding),
         "tip_displacement": float(np.hypot(d[0], d[2])),
-        "max_strain": float(OUTPUTS["max_strain"](sol, finger)),
+        "max_strain": float(_max_strain(sol, finger)),
         "closing": nan if state.closing is None else float(state.closing),
         "load_factor": float(sol.load_factor),
     }
+
+
+def status_of(state) -> tuple[str, str]:
+    """("ok" | "error", the status line) of a solved state."""
+    how = "one Newton solve from the last equilibrium" if state.how == "warm" else "full solve"
+    if state.converged:
+        return "ok", f"{state.status} ({how}, {1e3 * state.seconds:.0f} ms)"
+    keep = " The last good design stays drawn."
+    if state.solution.result == RESULTS.beyond_limit_load:
+        return "error", f"beyond the limit load: the finger folds under the load case.{keep}"
+    if state.solution.result == RESULTS.actuator_force_not_reached:
+        c = state.contact
+        return "error", (
+            "beyond the limit load: the actuator force asked is more than this finger "
+            f"presses with (it peaks near {float(c.actuator_force):.3f} N at closing "
+            f"{float(state.closing):.3f} mm).{keep}"
+        )
+    return "error", f"{state.status}: {state.message}{keep}"
 
 
 # --------------------------------------------------------------------------------------
@@ -156,7 +178,7 @@ def settings_of(state, explorer) -> SolveSettings:
     what = "grasp" if choices.mode == "grasp" else "load case"
     return SolveSettings(
         mode="planar",
-        integrator=explorer.integrator if choices.mode == "grasp" else SolveSettings().integrator,
+        integrator=explorer.integrator,
         name=f"explorer design ({what})",
         description=f"saved by finray explore (finray_jax {__version__})",
         grasp=grasp,
