@@ -89,7 +89,7 @@ def sensitivities(explorer, state) -> Sensitivities:
     ks = prog.stiffness if prog.stiffness is not None else (0.0, 0.0, 0.0)
     static = (
         state.topology,
-        explorer.integrator,
+        explorer.integrator_of(choices),
         explorer.options,
         choices,
         names,

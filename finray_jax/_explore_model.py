@@ -21,12 +21,14 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._contact import (
     member_penetration_limit,
+    member_stiffness,
     stiffness,
     support_penetration_limit,
     support_stiffness,
@@ -42,10 +44,19 @@ from ._grasp_solution import GRASP_STEPS, GraspSolution
 from ._integrator import Integrator
 from ._release import release_force
 from ._solution import RESULTS, Solution
-from ._solve import SolverOptions, direct_core, solve_finger, start_from_deformation, topology_of
+from ._solve import (
+    SolverOptions,
+    direct_core,
+    limit_load,
+    solve_finger,
+    start_from_deformation,
+    topology_of,
+    undeformed_unknowns,
+)
 
 _carry = jax.jit(start_from_deformation, static_argnums=0)
 _members = jax.jit(with_members, static_argnums=(1, 2))
+_finger_of = eqx.filter_jit(finger_of)  # (one program per choices: the values are arrays)
 
 
 @dataclasses.dataclass
@@ -110,7 +121,8 @@ class Explorer:
         if loads is None:
             loads = finger.loads or load_packaged_finger("finger1.toml")[0].loads
         self.loads = tuple(loads)
-        self.integrator = Integrator(steps=GRASP_STEPS)
+        self.integrator = Integrator(steps=GRASP_STEPS)  # a grasp's, as `grasp`'s default
+        self.load_integrator = Integrator()  # the load case's, as `solve_finger`'s default
         self.options = SolverOptions()
         self.programs: dict[Choices, Program] = {}
         self.state: State | None = None  # the last converged state
@@ -139,7 +151,8 @@ class Explorer:
                 raise ControlError(f"missing control {name!r}")
             checked[name] = check_value(name, values[name])
         prog = self.program(choices)
-        finger = finger_of(prog.base, choices, checked, self.loads)
+        arrays = {k: jnp.asarray(float(v), jnp.float64) for k, v in checked.items()}
+        finger = _finger_of(prog.base, choices, arrays, self.loads)
         validate_finger(finger)
         return finger
 
@@ -171,18 +184,35 @@ class Explorer:
     # ----------------------------------------------------------------------------------
 
     def _solve_loads(self, prog, choices, values, finger, prev) -> State:
+        """Newton from the previous equilibrium's deformation (or the undeformed shape);
+        when it fails, the limit load says whether the load case lies beyond it, and if
+        not, `solve_finger`'s continuation solves it."""
         if prog.topology is None:
             prog.topology = topology_of(finger, "planar")
-        init = None if prev is None else prev.solution
-        sol = solve_finger(finger, init=init, topology=prog.topology, keep_jacobian=True)
-        sol.max_residual.block_until_ready()
-        return State(
-            choices, dict(values), finger, finger, sol, None, None, "path", 0.0, prog.topology
+        topo, how = prog.topology, "warm"
+        if prev is not None:
+            y0 = self._start(topo, finger, values, prev)
+        else:
+            y0, how = undeformed_unknowns(topo, finger), "path"
+        sol, ok, _ = direct_core(
+            topo, self.load_integrator, self.options, finger, y0, np.float64(0.0)
         )
+        if not bool(ok):
+            how = "path"
+            limit = limit_load(finger, integrator=self.load_integrator, topology=topo)
+            if limit.found and float(limit.load_factor) < 1.0:
+                sol = eqx.tree_at(lambda s: s.result, limit.solution, RESULTS.beyond_limit_load)
+            else:
+                sol = solve_finger(finger, integrator=self.load_integrator, topology=topo)
+        sol.max_residual.block_until_ready()
+        return State(choices, dict(values), finger, finger, sol, None, None, how, 0.0, topo)
 
     def _grasp(self, prog, choices, values, finger, prev) -> State:
-        if prog.stiffness is not None:
-            finger = with_stiffness(finger, *prog.stiffness)
+        # (explicit from the first grasp on: one compiled program for every grasp)
+        ks = prog.stiffness
+        if ks is None:
+            ks = (stiffness(finger), support_stiffness(finger), member_stiffness(finger))
+        finger = with_stiffness(finger, *ks)
         w = jnp.asarray(self.direction, jnp.float64)
         closing = float(values["closing"])
         if choices.closing == "displacement" and prev is not None and prog.topology is not None:
@@ -232,16 +262,23 @@ class Explorer:
             g.topology,
         )
 
+    def integrator_of(self, choices: Choices) -> Integrator:
+        return self.integrator if choices.mode == "grasp" else self.load_integrator
+
+    def _start(self, topo, finger, values, prev):
+        """Newton's start for new values: the tangent's prediction from the sensitivities
+        at a recent state of the same program, else prev's deformation carried over."""
+        sens = self.sensitivities
+        if sens is not None and sens.choices == prev.choices:
+            return jnp.asarray(sens.predict(values))
+        return _carry(topo, finger, prev.solution.deformation)
+
     def _warm(self, prog, finger, values, w, prev):
         """One Newton solve from the tangent's prediction (the sensitivities at the
         previous state, when known) or else from prev's deformation: (moved, solution,
         contact), or None when it fails or a penetration limit does not hold."""
         moved = with_objects_moved(finger, -float(values["closing"]) * w)
-        sens = self.sensitivities
-        if sens is not None and sens.choices == prev.choices:
-            y0 = jnp.asarray(sens.predict(values))
-        else:
-            y0 = _carry(prog.topology, moved, prev.solution.deformation)
+        y0 = self._start(prog.topology, moved, values, prev)
         sol, ok, _ = direct_core(
             prog.topology, self.integrator, self.options, moved, y0, np.float64(0.0)
         )

@@ -178,7 +178,7 @@ def settings_of(state, explorer) -> SolveSettings:
     what = "grasp" if choices.mode == "grasp" else "load case"
     return SolveSettings(
         mode="planar",
-        integrator=explorer.integrator,
+        integrator=explorer.integrator_of(choices),
         name=f"explorer design ({what})",
         description=f"saved by finray explore (finray_jax {__version__})",
         grasp=grasp,
