@@ -6,11 +6,12 @@ the first design of a program, raised by `grasp` again whenever a penetration li
 holding), on the segment table of the program's first grasp, so that a moved control
 never recompiles: the state shown is `grasp(finger, closing, topology=...)` of the design
 with those stiffnesses written into its [contact] table (the TOML download carries them).
-A moved value is re-solved by one Newton solve started from the previous equilibrium's
-deformation; when that fails, or a penetration limit no longer holds, the whole closing
-path is solved again (`grasp`). A closing by actuator force always follows the closing
-path. The finger's load case is solved by `solve_finger` warm started from the previous
-solution (its continuation says where the load lies beyond the limit load).
+A moved value is re-solved by one Newton solve started from the previous equilibrium
+moved along its tangent (`_explore_grad`), or else from its deformation; when that
+fails, or a penetration limit no longer holds, the whole closing path is solved again
+(`grasp`). A closing by actuator force always follows the closing
+path. The finger's load case is solved the same way; where Newton fails, `limit_load`
+says whether the load lies beyond the limit, and `solve_finger` solves it otherwise.
 
 Choices (what is solved, the adaptor, the crossbeam count, the object's kind) select a
 program; a new one compiles on its first solve.
