@@ -46,10 +46,10 @@ demo: $(STAMP)
 	$(BIN)/finray demo --out demo_output
 
 # Everything: the default and slow tests, the notebooks, the optimize/ scripts, `finray
-# demo`, the explorer in headless Chromium, and the comparisons with the openseespy
-# reference (re-run as well; a missing reference, Bokeh or selenium fails the run instead
-# of skipping its tests). The test processes and the CLI,
-# script and notebook processes they start share one persistent compilation cache.
+# demo`, the explorer in headless Chromium, sweeps on a local Ray cluster, and the
+# comparisons with the openseespy reference (re-run as well; a missing reference, Ray,
+# Bokeh or selenium fails the run instead of skipping its tests). The test processes and
+# the CLI, script and notebook processes they start share one persistent compilation cache.
 TEST_CACHE ?= $(CURDIR)/.cache/test-xla
 test: $(REFERENCE) $(BROWSER)
 	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat --require ray \
