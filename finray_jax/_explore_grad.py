@@ -17,15 +17,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._contact import friction_may_act, with_friction
 from ._contact_result import contact_result
+from ._errors import FingerError
 from ._explore_design import Choices, design_values, finger_of
-from ._grasp_inputs import with_objects_moved, with_stiffness
+from ._grasp_inputs import with_contact, with_objects_moved, with_stiffness
+from ._objective import Static, objective_of
+from ._release import pulled_to
+from ._solution import RESULTS
 from ._solve import direct_core
 from .design import OUTPUTS
 
 # The objectives, in the order of the program's outputs.
 OBJECTIVES = ("contact force", "tip displacement", "largest strain")
-HOLDING = "holding force"  # (on request: the release trace's peak)
+HOLDING = "holding force"  # (on request, value and gradient: `holding_gradient`)
 
 
 @dataclasses.dataclass
@@ -108,3 +113,66 @@ def sensitivities(explorer, state) -> Sensitivities:
     return Sensitivities(
         choices, names, x, np.asarray(y), np.asarray(obj), np.asarray(d_y), np.asarray(d_obj)
     )
+
+
+@eqx.filter_jit
+def _holding(static, choices, names, base, fixed, stiffness, x, y0, friction):
+    def value(x):
+        values = {**fixed, **dict(zip(names, x))}
+        finger = with_stiffness(finger_of(base, choices, values), *stiffness)
+        finger = with_contact(finger, friction=friction, slip_direction=jnp.asarray(static.pull))
+        v, sol = objective_of(static, finger, y0, stiffness, values["closing"], fixed["pull"])[:2]
+        return v, sol.result
+
+    (v, result), grad = jax.value_and_grad(value, has_aux=True)(x)
+    return v, result, grad
+
+
+def holding_gradient(explorer, state) -> tuple[float, dict]:
+    """The derivatives of a grasp's holding force (`Explorer.holding` computed it: the
+    release trace's peak) in every design value: the optimiser's holding-force objective
+    (`_objective.objective_of`) at the peak's pull, held, differentiated by one implicit
+    solve (reverse mode). Returns (the holding force there, the gradient); FingerError
+    when the pull cannot be followed to the peak again."""
+    choices: Choices = state.choices
+    g = explorer.grasp_solution(state)
+    friction = float(state.values["friction"])
+    pull_direction = (0.0, 1.0)  # (the release trace's)
+    sol, pulled, ok = pulled_to(
+        g,
+        state.holding_pull,
+        pull_direction=pull_direction,
+        step=explorer.pull_step,
+        friction=friction,
+        topology=state.topology,
+    )
+    if not ok:
+        raise FingerError(f"the pull could not be followed to its peak at {state.holding_pull} mm")
+    topology = state.topology
+    if friction_may_act(pulled.contact):
+        topology = with_friction(topology)
+    static = Static(
+        names=(),
+        objective="holding_force",
+        aggregate="mean",
+        constraints=(),
+        topology=topology,
+        direction=g.direction,
+        pull=pull_direction,
+        holding_factor=g.holding_factor,
+        integrator=explorer.integrator,
+        options=explorer.options,
+    )
+    names = tuple(design_values(choices))
+    fixed = {k: jnp.asarray(float(v), jnp.float64) for k, v in state.values.items()}
+    fixed["closing"] = jnp.asarray(float(state.closing), jnp.float64)
+    fixed["pull"] = jnp.asarray(float(state.holding_pull), jnp.float64)
+    ks = jnp.asarray(explorer.program(choices).stiffness or (0.0, 0.0, 0.0), jnp.float64)
+    x = jnp.asarray([float(fixed[n]) for n in names])
+    v, result, grad = _holding(
+        static, choices, names, explorer.program(choices).base, fixed, ks, x, sol.unknowns,
+        jnp.asarray(friction, jnp.float64),
+    )  # fmt: skip
+    if not bool(result == RESULTS.successful):
+        raise FingerError(f"the holding force's gradient: {RESULTS[result]}")
+    return float(v), dict(zip(names, np.asarray(grad).tolist()))

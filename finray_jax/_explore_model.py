@@ -92,6 +92,8 @@ class State:
     topology: object
     holding: float | None = None
     holding_message: str = ""
+    holding_pull: float | None = None  # where the release trace's peak acts (mm)
+    holding_gradient: dict | None = None  # (`_explore_grad.holding_gradient`)
 
     @property
     def status(self) -> str:
@@ -320,14 +322,19 @@ class Explorer:
 
     def holding(self, state: State) -> State:
         """The state with its holding force (the release trace's peak, friction as the
-        page says); slower: it follows the pull until the contact is lost."""
+        page says); slower: it follows the pull until the contact is lost. The trace is
+        solved on the state's segment table, as the grasp is."""
         g = self.grasp_solution(state)
         trace = release_force(
             g,
             step=self.pull_step,
             friction=float(state.values["friction"]),
             integrator=self.integrator,
+            topology=state.topology,
         )
         return dataclasses.replace(
-            state, holding=float(trace.peak), holding_message=str(trace.message)
+            state,
+            holding=float(trace.peak),
+            holding_message=str(trace.message),
+            holding_pull=float(trace.peak_pull),
         )

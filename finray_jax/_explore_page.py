@@ -7,7 +7,8 @@ drawn with the reason above it.
 Models carry names (`Bokeh.documents[0].get_model_by_name(...)` in the browser): each
 numeric control by its control name, the choices ("mode", "adaptor", "crossbeam_count",
 "object_kind", "closing_kind"), "status", "numbers", "finger_lines", "gradient",
-"download" (the last download's file, base64) and the buttons.
+"compare" (the adaptors' numbers side by side), "download" (the last download's file,
+base64) and the buttons.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from ._explore_design import (
     Choices,
     active,
 )
-from ._explore_grad import HOLDING, OBJECTIVES, sensitivities
+from ._explore_grad import HOLDING, OBJECTIVES, holding_gradient, sensitivities
 from ._explore_page_tools import (
     DOWNLOAD_JS,
     compare_views,
@@ -69,7 +70,8 @@ class Page:
         self._figures()
         doc.title = "finray explore"
         doc.add_root(self._layout())
-        for source in (self.download, self.numbers):  # (in no layout: roots of their own)
+        # (in no layout: roots of their own)
+        for source in (self.download, self.numbers, self.compared):
             doc.add_root(source)
         self._poll = doc.add_periodic_callback(self._await_ready, POLL_MS)
         self._await_ready()
@@ -139,6 +141,7 @@ class Page:
         self.cb = ColumnDataSource({"index": [], "force": []}, name="crossbeam_forces")
         self.numbers = ColumnDataSource(empty("numbers"), name="numbers")
         self.gradient = ColumnDataSource(empty("gradient"), name="gradient")
+        self.compared = ColumnDataSource(empty("compare"), name="compare")
         f = figure(title="grasp", match_aspect=True, width=560, height=520, name="finger_figure")
         f.multi_line("xs", "ys", source=self.outline, color="#aaaaaa", line_dash="dashed")
         f.patches(
@@ -324,18 +327,25 @@ class Page:
             self.sens = sens
             self._show_gradient()
 
+    def _gradient(self) -> dict | None:
+        """The chosen objective's gradient at the drawn state (None: not known yet)."""
+        if self.state is None:
+            return None
+        if self.objective.value == HOLDING:
+            return self.state.holding_gradient
+        return None if self.sens is None else self.sens.gradient(self.objective.value)
+
     def _show_gradient(self) -> None:
         objective = self.objective.value
-        sens = self.sens
-        if objective == HOLDING or sens is None or self.state is None:
+        grad = self._gradient()
+        if grad is None:
             self.gradient.data = empty("gradient")
             self.gradient_figure.title.text = (
-                "gradient: not available for the holding force (compute it for its value)"
+                "gradient: press 'compute holding force' (value and gradient)"
                 if objective == HOLDING
                 else "gradient: computing"
             )
             return
-        grad = sens.gradient(objective)
         names = list(grad)
         scaled = [grad[n] * (BY_NAME[n].hi - BY_NAME[n].lo) for n in names]
         self.gradient.data = {
@@ -351,10 +361,11 @@ class Page:
     # ----------------------------------------------------------------------------------
 
     def _on_uphill(self) -> None:
-        if self.sens is None or self.objective.value == HOLDING:
+        grad = self._gradient()
+        if grad is None:
             self.status.text = status_html("error", "no gradient to step along yet")
             return
-        new = uphill(self.sens.gradient(self.objective.value), self.values())
+        new = uphill(grad, self.values())
         self.quiet = True
         try:
             for name, value in new.items():
@@ -367,11 +378,16 @@ class Page:
         state = self.state
         if state is None or state.contact is None:
             return
-        self.status.text = status_html("preparing", "tracing the release for the holding force")
+        self.status.text = status_html(
+            "preparing", "tracing the release for the holding force and its gradient"
+        )
 
         def job():
             try:
-                done = self.app.explorer.holding(state)
+                explorer = self.app.explorer
+                done = explorer.holding(state)
+                if done.holding == done.holding and done.holding > 0:  # (a peak to follow)
+                    done.holding_gradient = holding_gradient(explorer, done)[1]
                 self._later(self._show_holding, done)
             except REFUSED as e:
                 self._later(self._show, None, None, str(e))
@@ -382,6 +398,7 @@ class Page:
         if self.state is not None and self.state.values == state.values:
             self.state = state
             self._show_numbers(view_of(state).numbers)
+            self._show_gradient()
             self.status.text = status_html("ok", f"holding force: {state.holding_message}")
 
     def _on_compare(self) -> None:
@@ -392,15 +409,16 @@ class Page:
 
         def job():
             try:
-                views = compare_views(self.app.explorer, choices, values)
-                self._later(self._show_compare, views)
+                views, numbers = compare_views(self.app.explorer, choices, values)
+                self._later(self._show_compare, views, numbers)
             except REFUSED as e:
                 self._later(self._show, None, None, str(e))
 
         self.app.worker.submit(job)
 
-    def _show_compare(self, views) -> None:
+    def _show_compare(self, views, numbers) -> None:
         self.compare.children = views
+        self.compared.data = numbers
         self.status.text = status_html("ok", "original vs modified adaptor: below")
 
     def _download(self, kind: str) -> None:

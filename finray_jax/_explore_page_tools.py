@@ -39,6 +39,7 @@ _COLUMNS = {
     "download": ("name", "mime", "b64"),
     "numbers": ("name", "label", "value", "unit"),
     "gradient": ("name", "value", "scaled", "color"),
+    "compare": ("adaptor", "normal_force", "actuator_force"),
 }
 _COLORS = {"ok": "#1a7f37", "preparing": "#9a6700", "error": "#cf222e"}
 
@@ -108,13 +109,18 @@ def figure_files(kind: str, state, explorer) -> dict:
     return _file(f"finray_design.{kind}", mime, buf.getvalue())
 
 
-def compare_views(explorer, choices, values) -> list:
+def compare_views(explorer, choices, values) -> tuple[list, dict]:
     """Figures of the design with the original and with the modified adaptor (the grasp
-    of each: the closing path from the open gripper)."""
-    out = []
+    of each: the closing path from the open gripper), and their numbers (the "compare"
+    source's data: adaptor, contact and actuator force, NaN where a grasp failed)."""
+    out, numbers = [], empty("compare")
     for kind in ("original", "modified"):
         c = dataclasses.replace(choices, adaptor=kind, mode="grasp")
         state = explorer.solve_aside(c, values)
+        numbers["adaptor"].append(kind)
+        for key in ("normal_force", "actuator_force"):
+            v = float(getattr(state.contact, key)) if state.converged else float("nan")
+            numbers[key].append(v)
         f = figure(title=_compare_title(kind, state), match_aspect=True, width=380, height=380)
         if state.converged:
             v = view_of(state, explorer.symmetric)
@@ -127,7 +133,7 @@ def compare_views(explorer, choices, values) -> list:
             f.multi_line("xs", "ys", source=ColumnDataSource(v.lines), color="color", line_width=2)
         f.name = f"compare_{kind}"
         out.append(f)
-    return out
+    return out, numbers
 
 
 def _compare_title(kind: str, state) -> str:

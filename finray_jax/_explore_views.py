@@ -14,7 +14,7 @@ import numpy as np
 
 from ._centrelines import BACK, FRONT
 from ._explore_design import Choices
-from ._explore_grad import OBJECTIVES
+from ._explore_grad import HOLDING, OBJECTIVES
 from ._finger_toml import finger_to_toml
 from ._geometry import arc_point, geometry
 from ._objects import Circle, RoundedRectangle
@@ -206,4 +206,6 @@ def json_of(state, sensitivities=None, objective=None) -> dict:
         out["holding_message"] = state.holding_message
     if sensitivities is not None and objective in OBJECTIVES:
         out["gradient"] = {"objective": objective, "d_objective": sensitivities.gradient(objective)}
+    if objective == HOLDING and state.holding_gradient is not None:
+        out["gradient"] = {"objective": objective, "d_objective": dict(state.holding_gradient)}
     return out

@@ -82,7 +82,18 @@ def _values(static: Static, x) -> dict:
 def _solve_one(static: Static, base: Finger, x, unknowns, stiffness, closing, pull):
     """The grasp of one object at design x: (objective value, solution, moved finger,
     pressures front/back)."""
-    finger = _set_design(base, _values(static, x))
+    return objective_of(
+        static, _set_design(base, _values(static, x)), unknowns, stiffness, closing, pull
+    )
+
+
+def objective_of(static: Static, finger: Finger, unknowns, stiffness, closing, pull):
+    """The objective of one designed finger's grasp (its object closed by `closing` along
+    static.direction, then pulled by `pull` along static.pull; penalty stiffnesses
+    (objects, support)), by one implicit Newton solve from `unknowns`, differentiable in
+    the finger: (objective value, solution, moved finger, pressures front/back). The
+    holding force is its value at the peak pull, held (the peak's own move does not change
+    it to first order)."""
     w, e = jnp.asarray(static.direction), jnp.asarray(static.pull)
     moved = with_stiffness(
         with_objects_moved(finger, -closing * w + pull * e), stiffness[0], stiffness[1]

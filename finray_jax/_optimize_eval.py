@@ -28,7 +28,7 @@ from ._objective import (
     pull_slope,
 )
 from ._optimize_problem import OptimizeProblem
-from ._release import release_force
+from ._release import pulled_to, release_force
 from ._solution import RESULTS
 from ._solve import SolverOptions
 from ._stepper import Stepper
@@ -89,11 +89,13 @@ def _peak_pull(problem: OptimizeProblem, g: GraspSolution, i: int, say):
             f"with friction = {problem.friction:g}: {tr.message}); holding_force needs a "
             "positive peak"
         )
-    finger = _pull_finger(problem, g.finger)
-    e = np.asarray(problem.pull_direction, float)
-    st = Stepper(finger, "planar", g.integrator, SolverOptions(), False)
-    at = lambda t: with_objects_moved(finger, t * e)
-    t, sol, ok = st.follow(at, 0.0, tr.peak_pull, g.solution, problem.pull_step, 1e-4)
+    sol, _, ok = pulled_to(
+        g,
+        tr.peak_pull,
+        pull_direction=problem.pull_direction,
+        step=problem.pull_step,
+        friction=problem.friction,
+    )
     if not ok:
         raise OptimizeError(
             f"{problem.source}: could not follow object {i}'s pull to its peak at {tr.peak_pull} mm"

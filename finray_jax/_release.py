@@ -84,6 +84,36 @@ def release_force(
     )
 
 
+def pulled_to(
+    g: GraspSolution,
+    pull: float,
+    *,
+    pull_direction=(0.0, 1.0),
+    step: float = 1.0,
+    friction=None,
+    topology=None,
+):
+    """The grasp's equilibrium with its object pulled by `pull` (mm) along
+    `pull_direction`, under the pull's friction law (as `release_force` traces it),
+    followed from the pull's onset (as the trace starts) a step at a time: (solution,
+    pulled finger, ok). It puts the holding force's peak back in hand (`release_force`'s
+    `peak_pull`) to differentiate it there."""
+    w = unit_direction(pull_direction, "pull_direction")
+    finger = _pulled_finger(g.finger, w, friction)
+    stepper = Stepper(finger, "planar", g.integrator, SolverOptions(), False, topology=topology)
+
+    def at(t):
+        return with_objects_moved(finger, t * w)
+
+    stepper.direction = w
+    onset = ([], [], [])
+    sol = _pull_onset(stepper, at, g, w, onset)
+    if not onset[0]:  # (the pull's onset did not solve)
+        return sol, at(0.0), False
+    t, sol, ok = stepper.follow(at, 0.0, float(pull), sol, step, 1e-4)
+    return sol, at(t), bool(ok)
+
+
 def _pulled_finger(finger: Finger, w, friction) -> Finger:
     """The grasped finger with the pull's friction law: slip along the pull direction w,
     and the friction coefficient `friction` (None: the finger's own)."""

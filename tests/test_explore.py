@@ -10,6 +10,7 @@ the browser tests are skipped, unless `--require selenium` asks for them (`make 
 
 import asyncio
 import base64
+import dataclasses
 import json
 import math
 import os
@@ -286,6 +287,86 @@ def test_gradient_bars_numbers_json_and_screenshot(page):
     assert shot.stat().st_size > 20_000
 
 
+def _grasp_of_page(app, choices, values):
+    """`fr.grasp` of the page's design under `choices`, as the explorer solves it: at the
+    penalty stiffnesses its program holds, on the program's segment table."""
+    from finray_jax._grasp_inputs import with_stiffness
+
+    ex = app.explorer
+    prog = ex.program(choices)
+    finger = with_stiffness(ex.design(choices, values), *prog.stiffness)
+    return fr.grasp(
+        finger,
+        float(values["closing"]),
+        direction=ex.direction,
+        symmetric=ex.symmetric,
+        topology=prog.topology,
+    )
+
+
+def test_holding_force_button_shows_the_release_peak_and_its_gradient(page):
+    """The holding force drawn equals `fr.release_force(...)`.peak of the same grasp to
+    1e-9, and with "holding force" chosen its gradient bars are drawn."""
+    app, browser = page
+    _click(browser, "holding")
+    _wait(browser, lambda: math.isfinite(_numbers(browser)["holding_force"]), LIMIT_S)
+    state = app.explorer.state
+    g = _grasp_of_page(app, state.choices, state.values)
+    assert g.converged
+    trace = fr.release_force(
+        g, step=app.explorer.pull_step, friction=state.values["friction"], topology=g.topology
+    )
+    assert abs(_numbers(browser)["holding_force"] - trace.peak) <= 1e-9
+    _set(browser, "objective", "holding force")
+    try:
+        _wait(browser, lambda: len(_column(browser, "gradient", "scaled")) > 5, SOLVE_S)
+        assert all(math.isfinite(x) for x in _column(browser, "gradient", "scaled"))
+    finally:
+        _set(browser, "objective", "contact force")
+
+
+def test_step_uphill_raises_the_contact_force_within_bounds(page):
+    app, browser = page
+    from finray_jax._explore_design import BY_NAME
+
+    _wait(browser, lambda: len(_column(browser, "gradient", "scaled")) > 5, SOLVE_S)
+    names = _column(browser, "gradient", "name")
+    value = lambda n: browser.execute_script(_MODEL + "return m.value;", n)
+    before = {n: value(n) for n in names}
+    force = _numbers(browser)["contact_force"]
+    _click(browser, "uphill")
+    _wait(
+        browser,
+        lambda: _numbers(browser)["contact_force"] != force and "converged" in _status(browser),
+        SOLVE_S,
+    )
+    after = {n: value(n) for n in names}
+    assert after != before
+    assert all(BY_NAME[n].lo <= after[n] <= BY_NAME[n].hi for n in names)
+    assert _numbers(browser)["contact_force"] > force
+
+
+def test_original_vs_modified_adaptor_side_by_side(page):
+    """Both adaptors' grasps are drawn, and their numbers are `fr.grasp`'s of the page's
+    design with each adaptor to 1e-9 (and differ)."""
+    app, browser = page
+    _click(browser, "compare")
+    _wait(browser, lambda: len(_column(browser, "compare", "adaptor")) == 2, LIMIT_S)
+    for kind in ("original", "modified"):
+        assert browser.execute_script(_MODEL + "return m !== null;", f"compare_{kind}")
+    state = app.explorer.state
+    shown = {}
+    for i, kind in enumerate(_column(browser, "compare", "adaptor")):
+        c = dataclasses.replace(state.choices, adaptor=kind)
+        g = _grasp_of_page(app, c, state.values)
+        assert g.converged
+        for key in ("normal_force", "actuator_force"):
+            v = _column(browser, "compare", key)[i]
+            assert abs(v - float(getattr(g.contact, key))) <= 1e-9
+        shown[kind] = _column(browser, "compare", "normal_force")[i]
+    assert abs(shown["original"] - shown["modified"]) > 1e-3
+
+
 # --------------------------------------------------------------------------------------
 # Without a browser: the command line and the controls
 # --------------------------------------------------------------------------------------
@@ -338,3 +419,33 @@ def test_a_step_uphill_moves_the_steepest_control_by_two_percent_within_bounds()
     step = UPHILL_STEP * (0.5 * (e.hi - e.lo)) / (10.0 * 40.0) * (e.hi - e.lo)
     assert new["E"] == pytest.approx(round((12.0 + step) / e.step) * e.step)
     assert new["crossbeam_angle"] <= 0.0
+
+
+@pytest.mark.slow
+def test_holding_force_gradient_matches_a_central_difference_and_steps_uphill():
+    """The holding force's gradient (`holding_gradient`: the optimiser's objective at the
+    peak's pull) against a central difference of the holding force the page shows, in the
+    crossbeam thickness; and the page's step uphill along it raises the holding force."""
+    pytest.importorskip("bokeh")
+    from finray_jax._explore_app import App
+    from finray_jax._explore_grad import holding_gradient
+    from finray_jax._explore_page_tools import uphill
+
+    finger, settings = fio.load_finger(MODIFIED)
+    app = App(finger, settings.grasp, say=lambda m: None)
+    ex = app.explorer
+    state = ex.holding(ex.solve(app.choices, app.values))
+    value, grad = holding_gradient(ex, state)
+    assert abs(value - state.holding) <= 1e-9 * abs(state.holding)  # (the same equilibrium)
+    name, h = "back_clamp_length", 0.5
+    f = []
+    for sign in (1.0, -1.0):
+        values = {**app.values, name: app.values[name] + sign * h}
+        f.append(ex.holding(ex.solve_aside(app.choices, values)).holding)
+    fd = (f[0] - f[1]) / (2 * h)
+    # The central difference's own error: h^2/6 F''' from truncation (about 2.4e-6 N/mm
+    # here, 3.4e-4 of the derivative: F''' ~ 6e-5 N/mm^4 at h = 0.5 mm) and the solves'
+    # residuals over 2h (~1e-10 N / 1 mm, negligible); 1e-3 of the derivative bounds both.
+    assert abs(fd - grad[name]) <= 1e-3 * abs(grad[name])
+    new = {**app.values, **uphill(grad, app.values)}
+    assert ex.holding(ex.solve_aside(app.choices, new)).holding > state.holding
