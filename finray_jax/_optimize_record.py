@@ -5,6 +5,7 @@ from which a re-run continues), when the run stops, and the best design as finge
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -240,7 +241,8 @@ def best_tomls(problem: OptimizeProblem, x, iteration: int, objective: float, an
         ]
         if others:
             head.append(f"# The other objects' files: {', '.join(others)}.")
-        text = fio.finger_to_toml(finger, problem.settings)
+        # (the [grasp] table is this problem's, below: the settings' own is left out)
+        text = fio.finger_to_toml(finger, dataclasses.replace(problem.settings, grasp=None))
         texts.append("\n".join(head) + "\n" + text + "\n".join(grasp_lines) + "\n")
     return texts
 
