@@ -7,7 +7,7 @@ drawn with the reason above it.
 Models carry names (`Bokeh.documents[0].get_model_by_name(...)` in the browser): each
 numeric control by its control name, the choices ("mode", "adaptor", "crossbeam_count",
 "object_kind", "closing_kind"), "status", "numbers", "finger_lines", "gradient",
-"compare" (the adaptors' numbers side by side), "download" (the last download's file,
+"compared" (the adaptors' numbers side by side), "download" (the last download's file,
 base64) and the buttons.
 """
 
@@ -141,7 +141,7 @@ class Page:
         self.cb = ColumnDataSource({"index": [], "force": []}, name="crossbeam_forces")
         self.numbers = ColumnDataSource(empty("numbers"), name="numbers")
         self.gradient = ColumnDataSource(empty("gradient"), name="gradient")
-        self.compared = ColumnDataSource(empty("compare"), name="compare")
+        self.compared = ColumnDataSource(empty("compare"), name="compared")
         f = figure(title="grasp", match_aspect=True, width=560, height=520, name="finger_figure")
         f.multi_line("xs", "ys", source=self.outline, color="#aaaaaa", line_dash="dashed")
         f.patches(

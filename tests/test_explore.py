@@ -10,6 +10,7 @@ the browser tests are skipped, unless `--require selenium` asks for them (`make 
 
 import asyncio
 import base64
+import dataclasses
 import json
 import math
 import os
@@ -343,6 +344,27 @@ def test_step_uphill_raises_the_contact_force_within_bounds(page):
     assert after != before
     assert all(BY_NAME[n].lo <= after[n] <= BY_NAME[n].hi for n in names)
     assert _numbers(browser)["contact_force"] > force
+
+
+def test_original_vs_modified_adaptor_side_by_side(page):
+    """Both adaptors' grasps are drawn, and their numbers are `fr.grasp`'s of the page's
+    design with each adaptor to 1e-9 (and differ)."""
+    app, browser = page
+    _click(browser, "compare")
+    _wait(browser, lambda: len(_column(browser, "compared", "adaptor")) == 2, LIMIT_S)
+    for kind in ("original", "modified"):
+        assert browser.execute_script(_MODEL + "return m !== null;", f"compare_{kind}")
+    state = app.explorer.state
+    shown = {}
+    for i, kind in enumerate(_column(browser, "compared", "adaptor")):
+        c = dataclasses.replace(state.choices, adaptor=kind)
+        g = _grasp_of_page(app, c, state.values)
+        assert g.converged
+        for key in ("normal_force", "actuator_force"):
+            v = _column(browser, "compared", key)[i]
+            assert abs(v - float(getattr(g.contact, key))) <= 1e-9
+        shown[kind] = _column(browser, "compared", "normal_force")[i]
+    assert abs(shown["original"] - shown["modified"]) > 1e-3
 
 
 # --------------------------------------------------------------------------------------
