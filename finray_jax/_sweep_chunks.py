@@ -10,7 +10,6 @@ import dataclasses
 import io
 import math
 
-import jax
 import numpy as np
 
 from ._batch_data import INVALID, BatchResult, Diagnosis, one_line
@@ -18,7 +17,7 @@ from ._grasp_batch import iter_grasps
 from ._solution import RESULTS
 from ._solve import topology_of
 from ._sweep_file import Sweep
-from .batch import default_chunk_size, iter_batch
+from .batch import chunk_size_here, iter_batch
 
 GRASP_CHUNK = 16  # designs grasped in one chunk (one after another)
 
@@ -30,7 +29,7 @@ def chunk_size(sweep: Sweep) -> int:
         return sweep.chunk_size
     if sweep.settings.grasp is not None:
         return GRASP_CHUNK
-    return default_chunk_size(jax.devices()[0].platform)
+    return chunk_size_here()
 
 
 def chunks(size: int, per_chunk: int, have: np.ndarray) -> list[tuple[int, ...]]:

@@ -204,6 +204,11 @@ def default_chunk_size(platform: str) -> int:
     return 256 if platform == "cpu" else 4096
 
 
+def chunk_size_here() -> int:
+    """The default chunk size on the device this process solves on (`jax_default_device`)."""
+    return default_chunk_size(_default_device().platform)
+
+
 def iter_batch(
     base_finger: Finger,
     values: Mapping[str, np.ndarray],

@@ -14,9 +14,7 @@ installs it. docs/distributed.md shows a cluster at work.
 
 from __future__ import annotations
 
-from ._engine_core import RAY_HINT as RAY_HINT
 from ._engine_core import EngineError, Landed, LocalEngine, require_ray
-from ._engine_core import run_item as run_item
 from ._ray_engine import RayEngine
 
 __all__ = ["EngineError", "Landed", "LocalEngine", "RayEngine", "engine_named", "require_ray"]
