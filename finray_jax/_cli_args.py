@@ -11,6 +11,7 @@ from ._cli_common import UserError
 from ._version import __version__
 
 STUDY_CLOSING = 6.0  # mm, the paper studies' closing displacement
+STUDY_SUPPORT = 60.0  # mm, the clamp study's rigid support behind the back beam
 
 
 class Parser(argparse.ArgumentParser):
@@ -59,6 +60,21 @@ def _positive_float(text: str) -> float:
     if not x > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
     return x
+
+
+def _diameters(text: str) -> list[float]:
+    """A comma-separated list of positive sizes (mm)."""
+    return [_positive_float(x) for x in text.split(",")]
+
+
+def _clamp_lengths(text: str) -> list[float]:
+    """A comma-separated list of clamp lengths within the study's support (mm)."""
+    lengths = [_nonnegative_float(x) for x in text.split(",")]
+    if max(lengths) > STUDY_SUPPORT:
+        raise argparse.ArgumentTypeError(
+            f"clamp lengths lie within the support's {STUDY_SUPPORT:g} mm, got {text!r}"
+        )
+    return lengths
 
 
 def _positive_int(text: str) -> int:
@@ -275,6 +291,21 @@ def _add_clamp_study_parser(sub):
         default=None,
         metavar="N",
         help="hold the actuator force equal instead of the closing (replaces --closing)",
+    )
+    cs.add_argument(
+        "--diameters",
+        type=_diameters,
+        default=None,
+        metavar="MM,MM,...",
+        help="the cylinders' diameters (default 18,35,50,65)",
+    )
+    cs.add_argument(
+        "--clamp-lengths",
+        type=_clamp_lengths,
+        default=None,
+        metavar="MM,MM,...",
+        help=f"the back beam's clamp lengths, within the support's {STUDY_SUPPORT:g} mm "
+        "(default 0,10,20,30,40,50)",
     )
     cs.add_argument(
         "--holding",

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import io as fio
 from . import studies
-from ._cli_args import STUDY_CLOSING
+from ._cli_args import STUDY_CLOSING, STUDY_SUPPORT
 from ._cli_common import (
     DEMO_FINGER,
     EXIT_FAILED,
@@ -189,6 +189,11 @@ def clamp_study_command(args) -> int:
             "(the actuator force sets each grasp's closing)"
         )
     finger = _study_finger(args.finger)
+    grid = {}
+    if args.diameters is not None:
+        grid["diameters"] = args.diameters
+    if args.clamp_lengths is not None:
+        grid["clamp_lengths"] = args.clamp_lengths
     engine = engine_from_args(args)
     js = os.path.join(args.out, "clamp_study.json")
     engine_notice(engine, "contact solver")
@@ -197,6 +202,8 @@ def clamp_study_command(args) -> int:
     try:
         st = studies.clamp_study(
             finger,
+            **grid,
+            support_length=STUDY_SUPPORT,
             closing=args.closing,
             actuator_force=args.actuator_force,
             holding=args.holding,

@@ -244,7 +244,7 @@ def clamp_study(
     say = progress or (lambda msg: None)
     lc = np.asarray(clamp_lengths, dtype=float)
     dia = np.asarray(diameters, dtype=float)
-    _check_clamp_study(lc, support_length, actuator_force, friction)
+    _check_clamp_study(dia, lc, support_length, actuator_force, friction)
     settings = {
         "diameters": dia.tolist(),
         "clamp_lengths": lc.tolist(),
@@ -287,8 +287,12 @@ def clamp_study(
     return study()
 
 
-def _check_clamp_study(lc, support_length, actuator_force, friction) -> None:
+def _check_clamp_study(dia, lc, support_length, actuator_force, friction) -> None:
     """The clamp study's arguments, checked before any grasp (a ValueError names one)."""
+    if dia.ndim != 1 or dia.size == 0 or not np.all(np.isfinite(dia) & (dia > 0)):
+        raise ValueError(f"diameters must be one or more positive sizes (mm), got {dia.tolist()}")
+    if lc.ndim != 1 or lc.size == 0 or not np.all(np.isfinite(lc)):
+        raise ValueError(f"clamp_lengths must be one or more lengths (mm), got {lc.tolist()}")
     if np.any(lc > support_length) or np.any(lc < 0):
         raise ValueError(
             f"clamp_lengths must lie in [0, support_length = {support_length}], got {lc.tolist()}"

@@ -136,10 +136,29 @@ def test_compare_and_clamp_study(tmp_path):
     assert placed["contact_force_gain_percent"] == pytest.approx(260.0, abs=15.0)
     assert d["contact_force_gain_percent"] > 4 * placed["contact_force_gain_percent"]
     assert placed["modified"]["stability"]["stable"]
-    code, stdout, err = run(["clamp-study", "--out", str(tmp_path)])
+    grid = ["--diameters", "18,35", "--clamp-lengths", "10,30"]
+    code, stdout, err = run(["clamp-study", "--out", str(tmp_path), *grid])
     assert code == 0, err
     s = json.loads((tmp_path / "clamp_study.json").read_text())
-    assert len(s["best_clamp_length"]) == len(s["diameters"])
+    assert s["diameters"] == [18.0, 35.0] and s["clamp_lengths"] == [10.0, 30.0]
+    assert s["complete"] and s["support_length"] == 60.0
+    assert len(s["best_clamp_length"]) == 2 and set(s["best_clamp_length"]) <= {10.0, 30.0}
+    assert "l_c=10" in stdout and "l_c=30" in stdout
+
+
+@pytest.mark.parametrize(
+    "option, value, words",
+    [
+        ("--diameters", "18,-3", "argument --diameters: must be > 0, got '-3'"),
+        ("--diameters", "18,,35", "argument --diameters: expected a number, got ''"),
+        ("--clamp-lengths", "10,70", "clamp lengths lie within the support's 60 mm, got '10,70'"),
+        ("--clamp-lengths", "nan", "argument --clamp-lengths: expected a finite number"),
+    ],
+)
+def test_clamp_study_grid_options_are_checked_before_any_grasp(tmp_path, option, value, words):
+    code, _, err = run(["clamp-study", "--out", str(tmp_path), option, value])
+    assert code == 1 and words in err, err
+    assert not (tmp_path / "clamp_study.json").exists()
 
 
 # --------------------------------------------------------------------------------------

@@ -232,3 +232,19 @@ def test_clamp_study_best_is_nan_where_no_grasp_of_a_size_converged():
         np.array([18.0, 35.0]), lc, 60.0, force, holding_force=np.array([[1.0, 0.5, 2.0]] * 2)
     )
     assert held.best.tolist() == [20.0, 20.0] and held.measure == "holding force"
+
+
+@pytest.mark.parametrize(
+    "settings, words",
+    [
+        (dict(diameters=()), "diameters must be one or more positive sizes (mm), got []"),
+        (dict(diameters=(18.0, -1.0)), "diameters must be one or more positive sizes"),
+        (dict(clamp_lengths=(float("nan"),)), "clamp_lengths must be one or more lengths"),
+        (dict(clamp_lengths=(10.0, 61.0)), "clamp_lengths must lie in [0, support_length = 60.0]"),
+    ],
+)
+def test_a_clamp_study_grid_is_checked_before_any_grasp(settings, words):
+    said = []
+    with pytest.raises(ValueError) as e:
+        studies.clamp_study(_finger(), **settings, progress=said.append)
+    assert words in str(e.value) and not _grasps(said)
