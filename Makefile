@@ -7,10 +7,11 @@ STAMP := $(VENV)/.installed
 # The openseespy reference solver (the `bench` extra) and the system BLAS/LAPACK it loads,
 # and Ray (the `ray` extra) for the tests on a local Ray cluster.
 REFERENCE := $(VENV)/.installed-reference
-# Test processes (pytest-xdist; whole files per process, as they share compiled programs).
-# Each holds up to ~5 GB; 0 runs the suite in this process.
+# Test processes (pytest-xdist; whole files per process, as they share compiled programs;
+# in the order tests/conftest.py gives them, the costliest first). Each holds up to ~7 GB;
+# 0 runs the suite in this process.
 TEST_WORKERS ?= 2
-PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 .PHONY: demo test test-fast bench lint clean
 
@@ -50,10 +51,13 @@ demo: $(STAMP)
 # comparisons with the openseespy reference (re-run as well; a missing reference, Ray,
 # Bokeh or selenium fails the run instead of skipping its tests). The test processes and
 # the CLI, script and notebook processes they start share one persistent compilation cache.
+# A test still running after TEST_TIMEOUT seconds fails with its stack (pytest-timeout)
+# instead of holding the run; the slowest tests' times are listed at the end.
 TEST_CACHE ?= $(CURDIR)/.cache/test-xla
+TEST_TIMEOUT ?= 1800
 test: $(REFERENCE) $(BROWSER)
 	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat --require ray \
-	  --require bokeh --require selenium
+	  --require bokeh --require selenium --timeout $(TEST_TIMEOUT) --durations 25
 
 # The developers' subset: no slow and no openseespy-re-running tests.
 test-fast: $(STAMP)
