@@ -13,7 +13,7 @@ REFERENCE := $(VENV)/.installed-reference
 TEST_WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
-.PHONY: demo test test-fast bench lint clean
+.PHONY: demo test test-all test-fast bench lint clean
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) on PATH (or run: make PYTHON=python3 ...)"; exit 1; }
@@ -46,18 +46,25 @@ $(BROWSER): $(STAMP)
 demo: $(STAMP)
 	$(BIN)/finray demo --out demo_output
 
-# Everything: the default and slow tests, the notebooks, the optimize/ scripts, `finray
-# demo`, the explorer in headless Chromium, sweeps on a local Ray cluster, and the
-# comparisons with the openseespy reference (re-run as well; a missing reference, Ray,
-# Bokeh or selenium fails the run instead of skipping its tests). The test processes and
-# the CLI, script and notebook processes they start share one persistent compilation cache.
+# What CI runs: the default and slow tests, the notebooks, `finray demo`, the explorer in
+# headless Chromium, sweeps on a local Ray cluster, and the comparisons with the openseespy
+# reference (re-run as well; a missing reference, Ray, Bokeh or selenium fails the run
+# instead of skipping its tests), but not the tests marked `extended` (the optimize/
+# scripts, and the exhaustive finite-difference checks of every design value's derivative
+# on Finger-1 and ref-A L2), which `make test-all` adds. The test processes and the CLI,
+# script and notebook processes they start share one persistent compilation cache.
 # A test still running after TEST_TIMEOUT seconds fails with its stack (pytest-timeout)
 # instead of holding the run; the slowest tests' times are listed at the end.
 TEST_CACHE ?= $(CURDIR)/.cache/test-xla
 TEST_TIMEOUT ?= 1800
+TEST_ALL := FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy \
+  --require nbformat --require ray --require bokeh --require selenium --timeout $(TEST_TIMEOUT) \
+  --durations 25
 test: $(REFERENCE) $(BROWSER)
-	FINRAY_TEST_CACHE_DIR=$(TEST_CACHE) $(PYTEST) --runslow --require openseespy --require nbformat --require ray \
-	  --require bokeh --require selenium --timeout $(TEST_TIMEOUT) --durations 25
+	$(TEST_ALL) -m "not extended"
+
+test-all: $(REFERENCE) $(BROWSER)
+	$(TEST_ALL)
 
 # The developers' subset: no slow and no openseespy-re-running tests.
 test-fast: $(STAMP)

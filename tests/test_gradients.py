@@ -234,6 +234,7 @@ def finger1_derivs():
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_finger1_max_strain_is_at_a_unique_point(finger1_derivs):
     """max_strain is a max over solution points: its derivative is that of the strain at
     the maximising point, valid while that point does not change. None of the +-h solves
@@ -242,6 +243,7 @@ def test_finger1_max_strain_is_at_a_unique_point(finger1_derivs):
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_finger1_ties_are_one_sided(finger1_derivs):
     """Crossbeam 4 ends where the load starts (s = 75; the topology puts the crossbeam
     first) and crossbeam 6 where it ends (s = 105; the load's end first): only moving
@@ -276,6 +278,7 @@ def test_zero_length_segment_has_no_rigid_part_in_its_derivative():
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_finger1_ties_match_one_sided_fd(finger1_derivs):
     """At a tie the derivative is the one-sided one on the topology-keeping side. (The
     zero-length segment between the tied events has no rigid part on either side: a
@@ -288,18 +291,21 @@ def test_finger1_ties_match_one_sided_fd(finger1_derivs):
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("k", range(len(OUTS)), ids=OUTS)
 def test_finger1_jacfwd_matches_finite_differences(finger1_derivs, k):
     _check_against_fd(finger1_derivs, "jac", k)
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("k", range(len(OUTS)), ids=OUTS)
 def test_finger1_grad_matches_finite_differences(finger1_derivs, k):
     _check_against_fd(finger1_derivs, "rows", k)
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_finger1_grad_equals_jacfwd(finger1_derivs):
     """Forward and reverse mode solve the same linear system (J and its transpose): they
     agree to rounding, far tighter than the finite differences."""
@@ -324,11 +330,13 @@ def ref_a_l2_derivs():
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_ref_a_l2_max_strain_is_at_a_unique_point(ref_a_l2_derivs):
     assert ref_a_l2_derivs["moved"] == []
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("which", ["jac", "rows"], ids=["jacfwd", "grad"])
 @pytest.mark.parametrize("k", range(len(OUTS)), ids=OUTS)
 def test_ref_a_l2_matches_finite_differences(ref_a_l2_derivs, which, k):
@@ -336,6 +344,7 @@ def test_ref_a_l2_matches_finite_differences(ref_a_l2_derivs, which, k):
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_ref_a_l2_grad_equals_jacfwd(ref_a_l2_derivs):
     jac, rows = ref_a_l2_derivs["jac"], ref_a_l2_derivs["rows"]
     scale = np.max(np.abs(jac), axis=1, keepdims=True)

@@ -29,6 +29,7 @@ def read_csv(path):
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_clamp_vs_object_size(tmp_path):
     stdout = run_script("clamp_vs_object_size.py", tmp_path)
     stem = tmp_path / "clamp_vs_object_size"
@@ -64,6 +65,7 @@ def test_clamp_vs_object_size(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_crossbeam_count_angle(tmp_path):
     run_script("crossbeam_count_angle.py", tmp_path)
     stem = tmp_path / "crossbeam_count_angle"
