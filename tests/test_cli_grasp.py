@@ -120,6 +120,7 @@ def test_grasp_rigid_estimate(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.extended
 def test_compare_and_clamp_study(tmp_path):
     code, stdout, err = run(["compare", "--out", str(tmp_path)])
     assert code == 0, err
