@@ -3,9 +3,12 @@ by selenium), against the library's own answers.
 
 One server (in this process, on a free port) and one browser serve every test of the
 module; the page's models are read and set through BokehJS (`Bokeh.documents[0]`), which
-drives the same server callbacks as a drag. A screenshot of the page is saved under
-$FINRAY_TEST_ARTIFACTS (default tests/artifacts/). Without bokeh, selenium or Chromium
-the browser tests are skipped, unless `--require selenium` asks for them (`make test`).
+drives the same server callbacks as a drag. The tests' own solves reuse the programs the
+page compiled (the same segment tables, integrator and penalty stiffnesses), and the grasp
+of a downloaded finger file, solved once, serves every test that downloads that file. A
+screenshot of the page is saved under $FINRAY_TEST_ARTIFACTS (default tests/artifacts/).
+Without bokeh, selenium or Chromium the browser tests are skipped, unless `--require
+selenium` asks for them (`make test`).
 """
 
 import asyncio
@@ -171,9 +174,67 @@ def _numbers(browser) -> dict:
     return {n: (math.nan if v is None else float(v)) for n, v in zip(names, values)}
 
 
-def _download(browser, before=None) -> bytes:
-    _wait(browser, lambda: _column(browser, "download", "b64") not in ([], before), SOLVE_S)
+def _download(browser, button) -> bytes:
+    """The file a download button hands over (the "download" source emptied first, so that
+    the same file twice is seen too)."""
+    browser.execute_script(_MODEL + "m.data = {name: [], mime: [], b64: []};", "download")
+    _click(browser, button)
+    _wait(browser, lambda: len(_column(browser, "download", "b64")) > 0, SOLVE_S)
     return base64.b64decode(_column(browser, "download", "b64")[0])
+
+
+def _value(browser, name):
+    return browser.execute_script(_MODEL + "return m.value;", name)
+
+
+def _on_worker(app, fn, seconds):
+    """fn() run as a job of the page's worker: after the page's own solves, and none
+    beside it (the explorer is the page's)."""
+    done, box = threading.Event(), {}
+
+    def job():
+        try:
+            box["value"] = fn()
+        except BaseException as e:  # (raised again in the test)
+            box["error"] = e
+        finally:
+            done.set()
+
+    app.worker.submit(job)
+    assert done.wait(seconds), f"the worker's job did not finish in {seconds} s"
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
+# `fr.grasp` of a finger file's text (as `finray grasp` solves the file), once per text.
+_GRASPS: dict = {}
+
+
+def _grasp_of_file(text):
+    if text not in _GRASPS:
+        finger, settings = fio.loads_finger(text)
+        _GRASPS[text] = fr.grasp(finger, **settings.grasp.grasp_kwargs())
+    return _GRASPS[text]
+
+
+def _finray_grasp(path, out):
+    """`finray grasp PATH --out OUT` in this process: (exit code, its output, the
+    `GraspSolution` its `fr.grasp` returned), that grasp kept as the file's."""
+    from test_cli import run
+
+    solved, real = [], fr.grasp
+
+    def grasp(*args, **kwargs):
+        solved.append(real(*args, **kwargs))
+        return solved[-1]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(fr, "grasp", grasp)
+        code, stdout, err = run(["grasp", str(path), "--out", str(out)])
+    assert len(solved) == 1, stdout + err
+    _GRASPS[pathlib.Path(path).read_text()] = solved[0]
+    return code, stdout + err, solved[0]
 
 
 # --------------------------------------------------------------------------------------
@@ -182,13 +243,15 @@ def _download(browser, before=None) -> bytes:
 
 
 def test_moving_the_clamp_length_resolves_the_grasp_as_grasp_does(page, tmp_path):
-    """The contact force and the drawn finger change, and agree with `grasp` of the
-    design the page shows (its TOML download, solved on the page's segment table) to
-    1e-9; the download read back by `finray grasp` gives the same contact force."""
+    """A move of the back clamp length (20 to 22 mm: re-solved from the previous
+    equilibrium by one Newton solve) changes the contact force and the drawn finger; the
+    page's TOML download, read by `finray grasp` (`fr.grasp` of the file, on its own cuts:
+    the same as the page's here), solves to the same contact force, actuator force and
+    front beam to 1e-9, and its JSON output holds that contact force."""
     app, browser = page
     before = _numbers(browser)
     lines_before = _column(browser, "finger_lines", "xs")
-    _set(browser, "back_clamp_length", 24.0)
+    _set(browser, "back_clamp_length", 22.0)
     _wait(
         browser,
         lambda: (
@@ -197,29 +260,23 @@ def test_moving_the_clamp_length_resolves_the_grasp_as_grasp_does(page, tmp_path
         ),
         SOLVE_S,
     )
+    assert app.explorer.state.how == "warm"  # (the slider's solve, not the closing path)
     after = _numbers(browser)
     lines = _column(browser, "finger_lines", "xs"), _column(browser, "finger_lines", "ys")
     assert lines[0][0] != lines_before[0]  # (the drawn front beam moved)
-    _click(browser, "download_toml")
-    text = _download(browser).decode()
-    finger, settings = fio.loads_finger(text)
-    assert float(finger.adaptor.back_clamp_length) == 24.0
-    state = app.explorer.state
-    g = fr.grasp(finger, **settings.grasp.grasp_kwargs(), topology=state.topology)
+    text = _download(browser, "download_toml").decode()
+    finger, _ = fio.loads_finger(text)
+    assert float(finger.adaptor.back_clamp_length) == 22.0
+    path, out = tmp_path / "design.toml", tmp_path / "g.json"
+    path.write_text(text)
+    code, output, g = _finray_grasp(path, out)
+    assert code == 0, output
     assert g.converged
     assert abs(float(g.contact.normal_force) - after["contact_force"]) <= 1e-9
     assert abs(float(g.contact.actuator_force) - after["actuator_force"]) <= 1e-9
     front = np.asarray(g.solution.front.position)
     np.testing.assert_allclose(lines[0][0], front[:, 0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(lines[1][0], front[:, 2], rtol=0, atol=1e-9)
-    # `finray grasp` on the file (cut for its own finger: the same cuts as the page's here)
-    path = tmp_path / "design.toml"
-    path.write_text(text)
-    from test_cli import run
-
-    out = tmp_path / "g.json"
-    code, stdout, err = run(["grasp", str(path), "--out", str(out)])
-    assert code == 0, stdout + err
     doc = json.loads(out.read_text())
     assert abs(doc["contact"]["normal_force"] - after["contact_force"]) <= 1e-9
 
@@ -228,11 +285,12 @@ def test_moving_the_clamp_length_resolves_the_grasp_as_grasp_does(page, tmp_path
 def test_an_actuator_force_past_the_limit_says_so_and_keeps_the_page(page):
     """25 N is more than Finger-1 presses the 18 mm cylinder with (its force peaks near
     18 N, at 12 mm of closing): the status says the load lies beyond the limit, the last
-    good design stays drawn, and the page goes on. (The closing path to the peak takes
-    tens of seconds.)"""
+    good design stays drawn, and the page goes on (closed by displacement again, at the
+    actuator force it had). (The closing path to the peak takes tens of seconds.)"""
     app, browser = page
     good = _numbers(browser)
     xs = _column(browser, "finger_lines", "xs")
+    force = _value(browser, "actuator_force")
     _set(browser, "actuator_force", 25.0)
     browser.execute_script(_MODEL + "m.active = 1;", "closing_kind")
     try:
@@ -244,6 +302,7 @@ def test_an_actuator_force_past_the_limit_says_so_and_keeps_the_page(page):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
     finally:
         browser.execute_script(_MODEL + "m.active = 0;", "closing_kind")
+        _set(browser, "actuator_force", force)
         _wait(browser, lambda: "converged" in _status(browser), SOLVE_S)
 
 
@@ -252,8 +311,11 @@ def test_an_actuator_force_past_the_limit_says_so_and_keeps_the_page(page):
     [("NaN", "finite number"), (55.0, "outside its bounds")],
 )
 def test_bad_values_are_refused_on_the_page(page, value, words):
+    """A refused value says why, naming the control, and solves nothing; the control's
+    value before is then set again."""
     app, browser = page
     good = _numbers(browser)
+    kept = _value(browser, "back_clamp_length")
     browser.execute_script(
         _MODEL + "m.value = (arguments[1] === 'NaN') ? NaN : arguments[1];",
         "back_clamp_length",
@@ -263,7 +325,7 @@ def test_bad_values_are_refused_on_the_page(page, value, words):
     status = _status(browser)
     assert words in status and "back_clamp_length" in status, status
     assert _numbers(browser)["contact_force"] == good["contact_force"]  # (nothing solved)
-    _set(browser, "back_clamp_length", 24.0)
+    _set(browser, "back_clamp_length", kept)
     _wait(browser, lambda: "converged" in _status(browser), SOLVE_S)
 
 
@@ -275,9 +337,7 @@ def test_gradient_bars_numbers_json_and_screenshot(page):
     names = _column(browser, "gradient", "name")
     assert "back_clamp_length" in names and "E" in names
     assert all(math.isfinite(x) for x in _column(browser, "gradient", "scaled"))
-    before = _column(browser, "download", "b64")
-    _click(browser, "download_json")
-    doc = json.loads(_download(browser, before))
+    doc = json.loads(_download(browser, "download_json"))
     assert doc["status"] == "converged"
     assert doc["numbers"]["contact_force"] == _numbers(browser)["contact_force"]
     assert set(doc["gradient"]["d_objective"]) == set(names)
@@ -305,16 +365,18 @@ def _grasp_of_page(app, choices, values):
 
 
 def test_holding_force_button_shows_the_release_peak_and_its_gradient(page):
-    """The holding force drawn equals `fr.release_force(...)`.peak of the same grasp to
-    1e-9, and with "holding force" chosen its gradient bars are drawn."""
+    """The holding force drawn equals, to 1e-9, `fr.release_force(...)`.peak of `fr.grasp`
+    of the page's TOML download (traced at the file's pull step and friction, as `finray
+    grasp --release` does), and with "holding force" chosen its gradient bars are drawn."""
     app, browser = page
     _click(browser, "holding")
     _wait(browser, lambda: math.isfinite(_numbers(browser)["holding_force"]), LIMIT_S)
-    state = app.explorer.state
-    g = _grasp_of_page(app, state.choices, state.values)
+    text = _download(browser, "download_toml").decode()
+    grasp_settings = fio.loads_finger(text)[1].grasp
+    g = _grasp_of_file(text)
     assert g.converged
     trace = fr.release_force(
-        g, step=app.explorer.pull_step, friction=state.values["friction"], topology=g.topology
+        g, step=grasp_settings.pull_step, friction=grasp_settings.friction, topology=g.topology
     )
     assert abs(_numbers(browser)["holding_force"] - trace.peak) <= 1e-9
     _set(browser, "objective", "holding force")
@@ -331,8 +393,7 @@ def test_step_uphill_raises_the_contact_force_within_bounds(page):
 
     _wait(browser, lambda: len(_column(browser, "gradient", "scaled")) > 5, SOLVE_S)
     names = _column(browser, "gradient", "name")
-    value = lambda n: browser.execute_script(_MODEL + "return m.value;", n)
-    before = {n: value(n) for n in names}
+    before = {n: _value(browser, n) for n in names}
     force = _numbers(browser)["contact_force"]
     _click(browser, "uphill")
     _wait(
@@ -340,30 +401,39 @@ def test_step_uphill_raises_the_contact_force_within_bounds(page):
         lambda: _numbers(browser)["contact_force"] != force and "converged" in _status(browser),
         SOLVE_S,
     )
-    after = {n: value(n) for n in names}
+    after = {n: _value(browser, n) for n in names}
     assert after != before
     assert all(BY_NAME[n].lo <= after[n] <= BY_NAME[n].hi for n in names)
     assert _numbers(browser)["contact_force"] > force
 
 
 def test_original_vs_modified_adaptor_side_by_side(page):
-    """Both adaptors' grasps are drawn, and their numbers are `fr.grasp`'s of the page's
-    design with each adaptor to 1e-9 (and differ)."""
+    """Both adaptors' grasps are drawn (each solved from the open gripper); to 1e-9, the
+    modified adaptor's numbers are the page's own (the design drawn has the file's
+    adaptor, the modified one) and the original adaptor's are `fr.grasp`'s of the page's
+    design with that adaptor; the two differ."""
     app, browser = page
+    state = app.explorer.state
+    assert state.choices.adaptor == "modified"
+    drawn = _numbers(browser)
     _click(browser, "compare")
     _wait(browser, lambda: len(_column(browser, "compared", "adaptor")) == 2, LIMIT_S)
     for kind in ("original", "modified"):
         assert browser.execute_script(_MODEL + "return m !== null;", f"compare_{kind}")
-    state = app.explorer.state
+    numbers = {"normal_force": "contact_force", "actuator_force": "actuator_force"}
     shown = {}
     for i, kind in enumerate(_column(browser, "compared", "adaptor")):
-        c = dataclasses.replace(state.choices, adaptor=kind)
-        g = _grasp_of_page(app, c, state.values)
-        assert g.converged
-        for key in ("normal_force", "actuator_force"):
-            v = _column(browser, "compared", key)[i]
-            assert abs(v - float(getattr(g.contact, key))) <= 1e-9
-        shown[kind] = _column(browser, "compared", "normal_force")[i]
+        row = {key: _column(browser, "compared", key)[i] for key in numbers}
+        if kind == "modified":
+            expected = {key: drawn[name] for key, name in numbers.items()}
+        else:
+            c = dataclasses.replace(state.choices, adaptor=kind)
+            g = _grasp_of_page(app, c, state.values)
+            assert g.converged
+            expected = {key: float(getattr(g.contact, key)) for key in numbers}
+        for key in numbers:
+            assert abs(row[key] - expected[key]) <= 1e-9, (kind, key, row, expected)
+        shown[kind] = row["normal_force"]
     assert abs(shown["original"] - shown["modified"]) > 1e-3
 
 
@@ -421,31 +491,58 @@ def test_a_step_uphill_moves_the_steepest_control_by_two_percent_within_bounds()
     assert new["crossbeam_angle"] <= 0.0
 
 
-@pytest.mark.slow
-def test_holding_force_gradient_matches_a_central_difference_and_steps_uphill():
-    """The holding force's gradient (`holding_gradient`: the optimiser's objective at the
-    peak's pull) against a central difference of the holding force the page shows, in the
-    crossbeam thickness; and the page's step uphill along it raises the holding force."""
-    pytest.importorskip("bokeh")
-    from finray_jax._explore_app import App
-    from finray_jax._explore_grad import holding_gradient
-    from finray_jax._explore_page_tools import uphill
+def _contact_stiffness(state) -> tuple:
+    c = state.finger.contact
+    return tuple(float(k) for k in (c.stiffness, c.support_stiffness, c.member_stiffness))
 
-    finger, settings = fio.load_finger(MODIFIED)
-    app = App(finger, settings.grasp, say=lambda m: None)
+
+def _solved_from(explorer, state, values):
+    """The explorer's solve of `values` started from `state`, as a control moved from
+    state's design re-solves it (from the tangent's prediction: the sensitivities at
+    state), leaving the explorer's own state and sensitivities as they were."""
+    from finray_jax._explore_grad import sensitivities
+
+    kept = explorer.state, explorer.sensitivities
+    explorer.state, explorer.sensitivities = state, sensitivities(explorer, state)
+    try:
+        return explorer.solve(state.choices, values)
+    finally:
+        explorer.state, explorer.sensitivities = kept
+
+
+@pytest.mark.slow
+def test_holding_force_gradient_matches_a_central_difference(server):
+    """The holding force's gradient (`holding_gradient`: the optimiser's objective at the
+    peak's pull) against a central difference of the holding force the page computes
+    (`Explorer.holding`), in the back clamp length, at the finger file's design: the
+    page's explorer solves the design and its two neighbours as a moved control does (from
+    the nearby equilibrium, at the same penalty stiffnesses), on the page's worker. The
+    neighbour the gradient points to holds more, the other less."""
+    from finray_jax._explore_grad import holding_gradient
+
+    app, _ = server
+    assert app.worker.wait_idle(READY_S) and app.ready, app.error
     ex = app.explorer
-    state = ex.holding(ex.solve(app.choices, app.values))
-    value, grad = holding_gradient(ex, state)
-    assert abs(value - state.holding) <= 1e-9 * abs(state.holding)  # (the same equilibrium)
     name, h = "back_clamp_length", 0.5
-    f = []
-    for sign in (1.0, -1.0):
-        values = {**app.values, name: app.values[name] + sign * h}
-        f.append(ex.holding(ex.solve_aside(app.choices, values)).holding)
-    fd = (f[0] - f[1]) / (2 * h)
+
+    def central_difference():
+        base = _solved_from(ex, app.first, app.values)
+        state = ex.holding(base)
+        value, grad = holding_gradient(ex, state)
+        f = {}
+        for sign in (1.0, -1.0):
+            moved = _solved_from(ex, base, {**app.values, name: app.values[name] + sign * h})
+            assert moved.converged and _contact_stiffness(moved) == _contact_stiffness(base)
+            f[sign] = ex.holding(moved).holding
+        return state, value, grad[name], f
+
+    state, value, grad, f = _on_worker(app, central_difference, LIMIT_S)
+    assert state.holding > 0
+    assert abs(value - state.holding) <= 1e-9 * abs(state.holding)  # (the same equilibrium)
+    fd = (f[1.0] - f[-1.0]) / (2 * h)
     # The central difference's own error: h^2/6 F''' from truncation (about 2.4e-6 N/mm
     # here, 3.4e-4 of the derivative: F''' ~ 6e-5 N/mm^4 at h = 0.5 mm) and the solves'
     # residuals over 2h (~1e-10 N / 1 mm, negligible); 1e-3 of the derivative bounds both.
-    assert abs(fd - grad[name]) <= 1e-3 * abs(grad[name])
-    new = {**app.values, **uphill(grad, app.values)}
-    assert ex.holding(ex.solve_aside(app.choices, new)).holding > state.holding
+    assert abs(fd - grad) <= 1e-3 * abs(grad)
+    up = math.copysign(1.0, grad)
+    assert f[up] > state.holding > f[-up]
