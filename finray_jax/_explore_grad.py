@@ -17,7 +17,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._contact import friction_may_act, with_friction
+from ._contact import (
+    friction_may_act,
+    member_stiffness,
+    stiffness,
+    support_stiffness,
+    with_friction,
+)
 from ._contact_result import contact_result
 from ._errors import FingerError
 from ._explore_design import Choices, design_values, finger_of
@@ -60,8 +66,18 @@ def tip_displacement(sol):
     return jnp.sqrt(d[0] ** 2 + d[2] ** 2 + 1e-30)
 
 
+def penalties(state):
+    """The penalty stiffnesses (objects, support, members) a grasp's state was solved at:
+    its own finger's, which the program's may have left behind since (raised by a later
+    grasp whose penetration limit did not hold). Zeros for the load case (unused)."""
+    if state.choices.mode != "grasp":
+        return jnp.zeros(3, jnp.float64)
+    f = state.finger
+    return jnp.asarray([stiffness(f), support_stiffness(f), member_stiffness(f)], jnp.float64)
+
+
 @eqx.filter_jit
-def _sensitivities(static, base, loads, fixed, stiffness, x, y0):
+def _sensitivities(static, base, loads, fixed, ks, x, y0):
     topo, integrator, options, choices, names, direction = static
     w = jnp.asarray(direction, jnp.float64)
 
@@ -69,7 +85,7 @@ def _sensitivities(static, base, loads, fixed, stiffness, x, y0):
         values = {**fixed, **dict(zip(names, x))}
         finger = finger_of(base, choices, values, loads)
         if choices.mode == "grasp":
-            finger = with_stiffness(finger, *stiffness)
+            finger = with_stiffness(finger, *ks)
             finger = with_objects_moved(finger, -values["closing"] * w)
         sol, _, _ = direct_core(topo, integrator, options, finger, y0, jnp.zeros(()))
         force = jnp.full((), jnp.nan)
@@ -91,7 +107,6 @@ def sensitivities(explorer, state) -> Sensitivities:
     if choices.mode == "grasp":
         fixed["closing"] = jnp.asarray(float(state.closing), jnp.float64)
     prog = explorer.program(choices)
-    ks = prog.stiffness if prog.stiffness is not None else (0.0, 0.0, 0.0)
     static = (
         state.topology,
         explorer.integrator_of(choices),
@@ -106,7 +121,7 @@ def sensitivities(explorer, state) -> Sensitivities:
         prog.base,
         explorer.loads,
         fixed,
-        jnp.asarray(ks, jnp.float64),
+        penalties(state),
         jnp.asarray(x),
         state.solution.unknowns,
     )
@@ -116,12 +131,12 @@ def sensitivities(explorer, state) -> Sensitivities:
 
 
 @eqx.filter_jit
-def _holding(static, choices, names, base, fixed, stiffness, x, y0, friction):
+def _holding(static, choices, names, base, fixed, ks, x, y0, friction):
     def value(x):
         values = {**fixed, **dict(zip(names, x))}
-        finger = with_stiffness(finger_of(base, choices, values), *stiffness)
+        finger = with_stiffness(finger_of(base, choices, values), *ks)
         finger = with_contact(finger, friction=friction, slip_direction=jnp.asarray(static.pull))
-        v, sol = objective_of(static, finger, y0, stiffness, values["closing"], fixed["pull"])[:2]
+        v, sol = objective_of(static, finger, y0, ks, values["closing"], fixed["pull"])[:2]
         return v, sol.result
 
     (v, result), grad = jax.value_and_grad(value, has_aux=True)(x)
@@ -167,10 +182,10 @@ def holding_gradient(explorer, state) -> tuple[float, dict]:
     fixed = {k: jnp.asarray(float(v), jnp.float64) for k, v in state.values.items()}
     fixed["closing"] = jnp.asarray(float(state.closing), jnp.float64)
     fixed["pull"] = jnp.asarray(float(state.holding_pull), jnp.float64)
-    ks = jnp.asarray(explorer.program(choices).stiffness or (0.0, 0.0, 0.0), jnp.float64)
     x = jnp.asarray([float(fixed[n]) for n in names])
     v, result, grad = _holding(
-        static, choices, names, explorer.program(choices).base, fixed, ks, x, sol.unknowns,
+        static, choices, names, explorer.program(choices).base, fixed, penalties(state), x,
+        sol.unknowns,
         jnp.asarray(friction, jnp.float64),
     )  # fmt: skip
     if not bool(result == RESULTS.successful):

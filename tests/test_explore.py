@@ -546,3 +546,32 @@ def test_holding_force_gradient_matches_a_central_difference(server):
     assert abs(fd - grad) <= 1e-3 * abs(grad)
     up = math.copysign(1.0, grad)
     assert f[up] > state.holding > f[-up]
+
+
+def test_sensitivities_are_taken_at_the_penalties_the_state_was_solved_at(server):
+    """A program's penalty stiffnesses rise when a later grasp's penetration limit does
+    not hold; the derivatives at an earlier state stay those of its own equilibrium, at
+    the stiffnesses it was solved at (its finger's [contact] table), not the program's."""
+    from finray_jax._explore_grad import sensitivities
+
+    app, _ = server
+    assert app.worker.wait_idle(READY_S) and app.ready, app.error
+    ex, state = app.explorer, app.first
+    prog = ex.program(state.choices)
+
+    def at_raised_penalties():
+        kept = prog.stiffness
+        prog.stiffness = tuple(4.0 * k for k in _contact_stiffness(state))
+        try:
+            return sensitivities(ex, state)
+        finally:
+            prog.stiffness = kept
+
+    sens = _on_worker(app, at_raised_penalties, SOLVE_S)
+    y = np.asarray(state.solution.unknowns)
+    # Newton from the state's own equilibrium stays there: the same unknowns to its
+    # tolerance (1e-10 on the scaled unknowns); the equilibrium at four times the
+    # penalties lies ~2 % of the largest unknown away.
+    assert np.max(np.abs(sens.unknowns - y)) <= 1e-8 * np.max(np.abs(y))
+    force = float(state.contact.normal_force)
+    assert sens.objectives[0] == pytest.approx(force, rel=1e-9)
