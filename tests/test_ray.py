@@ -1,10 +1,12 @@
 """Sweeps and the clamp study on a real Ray cluster started on this machine: a head node
 (no CPUs of its own) and a worker node with 2 CPUs, joined by `ray start` as on a real
-cluster. The results equal the local engine's, row for row; a worker process killed
-while it holds a task costs nothing (Ray retries it), or, with no retries left, its chunk
-is reported by its design indices and the rest completes; a driver interrupted by Ctrl-C
-and run again loses and repeats no row. Without Ray, `--engine ray` says how to install
-it. Ray's own processes are stopped when the module ends.
+cluster. The results (examples/sweep_clamp.toml, a grasp sweep with the holding force, the
+clamp study) equal the local engine's, row for row; a worker process killed while it holds
+a task costs nothing (Ray retries it), or, with no retries left, its chunk is reported by
+its design indices and the rest completes; a driver interrupted by Ctrl-C and run again
+loses and repeats no row. Those three run examples/sweep_clamp.toml cut into chunks of 4
+designs (8 tasks). Without Ray, `--engine ray` says how to install it. Ray's own processes
+are stopped when the module ends.
 """
 
 import csv
@@ -34,12 +36,14 @@ BIN = pathlib.Path(sys.executable).parent
 FINRAY = shutil.which("finray", path=str(BIN))
 RAY = shutil.which("ray", path=str(BIN))
 
-# Small grasp sweeps: Finger-1 on the modified adaptor closing 6 mm on the 18 mm cylinder
-# (examples/grasp_finger1_modified.toml), back-beam clamp lengths in one-grasp chunks;
-# the contact alone, or with the holding force (release traces pulled in 4 mm steps).
+# A small grasp sweep: Finger-1 on the modified adaptor closing 6 mm on the 18 mm cylinder
+# (examples/grasp_finger1_modified.toml), two back-beam clamp lengths in one-grasp chunks,
+# with the contact and the holding force. The cylinder sits at z = 95 mm (25 mm below
+# the tips) and the contact has friction 0.3 (FINGER_EDITS): its release trace, pulled in
+# 4 mm steps, holds it over the first ~28 mm and ends in ~10 contact solves.
 GRASP_SWEEP = """
 finger = "finger.toml"
-outputs = {outputs}
+outputs = ["contact.normal_force", "contact.length", "max_strain", "release.peak"]
 chunk_size = 1
 
 [sampling]
@@ -48,9 +52,14 @@ kind = "grid"
 [[design]]
 name = "adaptor.back_clamp_length"
 range = [16.5, 31.0]
-points = {points}
+points = 2
 """
-CONTACT = ["contact.normal_force", "contact.length", "max_strain"]
+FINGER_EDITS = {
+    "center = [-11.0, 60.0]": "center = [-11.0, 95.0]",
+    "[contact]\n": "[contact]\nfriction = 0.3\n",
+    "pull_step = 2.0 ": "pull_step = 4.0 ",
+}
+CLAMP_CHUNK = 4  # designs per chunk of the clamp sweep that is killed and interrupted
 
 
 def _free_port() -> int:
@@ -122,23 +131,6 @@ def assert_same_rows(got, want) -> None:
                 )
 
 
-def _local_grasp_sweep(d: pathlib.Path, outputs, points: int):
-    """A grasp sweep written in d beside its finger, and the CSV of its local run."""
-    finger = (EXAMPLES / "grasp_finger1_modified.toml").read_text()
-    (d / "finger.toml").write_text(finger.replace("pull_step = 2.0 ", "pull_step = 4.0 "))
-    (d / "sweep.toml").write_text(GRASP_SWEEP.format(outputs=outputs, points=points))
-    sw = fsweep.load_sweep(d / "sweep.toml")
-    local = fsweep.run_sweep(sw, d / "local", plot=False)
-    assert local.finished and local.converged == sw.size
-    return sw, local.csv
-
-
-@pytest.fixture(scope="module")
-def grasp_sweep(tmp_path_factory):
-    """Three grasps, the contact alone, and the local engine's results."""
-    return _local_grasp_sweep(tmp_path_factory.mktemp("grasp"), CONTACT, 3)
-
-
 @pytest.fixture(scope="module")
 def clamp_sweep(tmp_path_factory):
     """examples/sweep_clamp.toml (29 designs of ref-A, 2 chunks) and its local results."""
@@ -146,6 +138,21 @@ def clamp_sweep(tmp_path_factory):
     local = fsweep.run_sweep(sw, tmp_path_factory.mktemp("clamp") / "local", plot=False)
     assert local.finished
     return sw, local.csv
+
+
+@pytest.fixture(scope="module")
+def clamp_chunks(tmp_path_factory, clamp_sweep):
+    """examples/sweep_clamp.toml in chunks of CLAMP_CHUNK designs (8 tasks, the last of one
+    design), and the local results of the original (chunks of 16): a design's row does not
+    depend on the length of the chunk it is solved in."""
+    text = (EXAMPLES / "sweep_clamp.toml").read_text()
+    text = text.replace('"ref_a.toml"', f'"{(EXAMPLES / "ref_a.toml").as_posix()}"')
+    text = text.replace("chunk_size = 16", f"chunk_size = {CLAMP_CHUNK}")
+    path = tmp_path_factory.mktemp("chunks") / "sweep_clamp.toml"
+    path.write_text(text)
+    sw = fsweep.load_sweep(path)
+    assert sw.chunk_size == CLAMP_CHUNK and sw.size == clamp_sweep[0].size
+    return sw, clamp_sweep[1]
 
 
 def test_the_clamp_sweep_on_ray_equals_the_local_engine(cluster, cache, clamp_sweep, tmp_path):
@@ -166,28 +173,38 @@ def test_the_clamp_sweep_on_ray_equals_the_local_engine(cluster, cache, clamp_sw
 
 def test_a_holding_force_sweep_on_ray_equals_the_local_engine(cluster, cache, tmp_path):
     """Two one-grasp chunks with their release traces, on two workers, land in any
-    order; the CSV is sorted."""
-    sw, local_csv = _local_grasp_sweep(tmp_path, [*CONTACT, "release.peak"], 2)
+    order; the CSV is sorted, and both designs hold the cylinder."""
+    finger = (EXAMPLES / "grasp_finger1_modified.toml").read_text()
+    for old, new in FINGER_EDITS.items():
+        assert finger.count(old) == 1, old
+        finger = finger.replace(old, new)
+    (tmp_path / "finger.toml").write_text(finger)
+    (tmp_path / "sweep.toml").write_text(GRASP_SWEEP)
+    sw = fsweep.load_sweep(tmp_path / "sweep.toml")
+    local = fsweep.run_sweep(sw, tmp_path / "local", plot=False)
+    assert local.finished and local.converged == sw.size
     run = fsweep.run_sweep(sw, tmp_path / "ray", engine=_engine(cluster, cache), plot=False)
     assert run.finished and not run.failed_chunks
-    assert_same_rows(run.csv, local_csv)
+    assert_same_rows(run.csv, local.csv)
     assert sum(t.chunks for t in run.workers.values()) == 2
-    peak = fsweep.read_results(run.csv)["release.peak"]  # (0: not held, a result too)
-    assert np.all(np.isfinite(peak) & (peak >= 0)) and np.any(peak > 0), peak
+    peak = fsweep.read_results(run.csv)["release.peak"]
+    assert np.all(np.isfinite(peak) & (peak > 0)), peak
 
 
 def test_the_clamp_study_on_ray_equals_the_local_engine(cluster, cache):
-    """Two grasps of the modified adaptor, one task each, land as on the local engine."""
+    """A clamp study of one grasp (the modified adaptor, l_c = 10 mm, on the 18 mm
+    cylinder) runs as a task on the worker node and lands as on the local engine."""
     finger, _ = fio.load_packaged_finger(cli.DEMO_FINGER)
-    settings = dict(diameters=(18.0,), clamp_lengths=(10.0, 30.0), closing=6.0)
+    settings = dict(diameters=(18.0,), clamp_lengths=(10.0,), closing=6.0)
     local = studies.clamp_study(finger, **settings, engine=LocalEngine())
     said = []
     on_ray = studies.clamp_study(
         finger, **settings, engine=_engine(cluster, cache), progress=said.append
     )
+    assert np.all(np.isfinite(local.normal_force) & (local.normal_force > 0))
     np.testing.assert_allclose(on_ray.normal_force, local.normal_force, rtol=1e-12, atol=0)
     np.testing.assert_allclose(on_ray.closing, local.closing, rtol=1e-12, atol=0)
-    assert sum("l_c =" in m for m in said) == 2
+    assert sum("l_c =" in m for m in said) == 1
 
 
 def _busy_workers() -> list[int]:
@@ -223,35 +240,43 @@ class _Killer(threading.Thread):
 
 
 def test_a_worker_killed_mid_task_is_retried_and_every_design_lands_once(
-    cluster, cache, grasp_sweep, tmp_path
+    cluster, cache, clamp_chunks, tmp_path
 ):
-    sw, local_csv = grasp_sweep
+    """A worker killed in its first task (which loads the sweep's program): Ray runs the
+    chunk again, and all 8 chunks land once, as on the local engine."""
+    sw, local_csv = clamp_chunks
     killer = _Killer()
     killer.start()
     run = fsweep.run_sweep(sw, tmp_path / "ray", engine=_engine(cluster, cache), plot=False)
     killer.stop.set()
     assert killer.killed is not None, "no worker was seen running a task"
     assert run.finished and not run.failed_chunks
+    assert sum(t.chunks for t in run.workers.values()) == 8
     assert_same_rows(run.csv, local_csv)
 
 
 def test_a_chunk_that_fails_for_good_is_reported_and_the_rest_completes(
-    cluster, cache, grasp_sweep, tmp_path
+    cluster, cache, clamp_chunks, tmp_path
 ):
-    """No retries: the killed worker's chunk is reported with its design index, the other
-    designs are written; the same sweep run again solves that one design."""
-    sw, local_csv = grasp_sweep
+    """No retries: the killed worker's chunk is reported with its design indices, the
+    other designs are written; the same sweep run again solves that chunk alone."""
+    sw, local_csv = clamp_chunks
     killer = _Killer()
     killer.start()
     run = fsweep.run_sweep(
         sw, tmp_path / "ray", engine=_engine(cluster, cache, max_retries=0), plot=False
     )
     killer.stop.set()
-    assert killer.killed is not None
-    assert len(run.failed_chunks) == 1 and not run.finished and run.done == sw.size - 1
+    assert killer.killed is not None, "no worker was seen running a task"
+    assert len(run.failed_chunks) == 1 and not run.finished
     (chunk,) = run.failed_chunks
-    assert len(chunk.indices) == 1 and "died" in chunk.error
-    assert chunk.describe().startswith(f"chunk of design {chunk.indices[0]} (1) failed")
+    first = chunk.indices[0]
+    assert first % CLAMP_CHUNK == 0 and "died" in chunk.error
+    assert chunk.indices == tuple(range(first, min(first + CLAMP_CHUNK, sw.size)))
+    n = len(chunk.indices)
+    span = f"design {first}" if n == 1 else f"designs {first} to {chunk.indices[-1]}"
+    assert chunk.describe().startswith(f"chunk of {span} ({n}) failed")
+    assert run.done == sw.size - n
     written = [int(r[0]) for r in _rows(run.csv)[1:]]
     assert sorted(written) == sorted(set(range(sw.size)) - set(chunk.indices))
     again = fsweep.run_sweep(sw, tmp_path / "ray", engine=_engine(cluster, cache), plot=False)
@@ -261,11 +286,13 @@ def test_a_chunk_that_fails_for_good_is_reported_and_the_rest_completes(
 
 @pytest.mark.skipif(FINRAY is None, reason="the finray console script is not installed")
 def test_a_driver_interrupted_and_run_again_loses_and_repeats_no_row(
-    cluster, cache, grasp_sweep, tmp_path
+    cluster, cache, clamp_chunks, tmp_path
 ):
     """`finray sweep --engine ray` gets Ctrl-C once a row is written: exit 130 and one
-    line; the same command run again finishes with every design once."""
-    sw, local_csv = grasp_sweep
+    line; the same command run again finishes with every design once. The driver is
+    stopped (SIGSTOP) the moment the test sees a row, given the SIGINT and continued, so
+    that the interrupt lands with chunks still to come however fast the workers are."""
+    sw, local_csv = clamp_chunks
     out = tmp_path / "out"
     argv = [FINRAY, "sweep", sw.source, "--out", str(out), "--engine", "ray"]
     argv += ["--address", cluster, "--workers", "2", "--cache-dir", cache]
@@ -273,10 +300,12 @@ def test_a_driver_interrupted_and_run_again_loses_and_repeats_no_row(
     deadline = time.monotonic() + 600
     while time.monotonic() < deadline and proc.poll() is None:
         if (out / "results.csv").exists() and len(_rows(out / "results.csv")) >= 2:
+            os.kill(proc.pid, signal.SIGSTOP)
             break
-        time.sleep(0.1)
+        time.sleep(0.02)
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGINT)
+    os.kill(proc.pid, signal.SIGCONT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
     lines = [ln for ln in stderr.splitlines() if ln.strip()]
