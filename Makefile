@@ -51,8 +51,9 @@ demo: $(STAMP)
 # reference (re-run as well; a missing reference, Ray, Bokeh or selenium fails the run
 # instead of skipping its tests), but not the tests marked `extended` (the optimize/
 # scripts, `finray compare` with a clamp study, and the exhaustive finite-difference checks
-# of every design value's derivative on Finger-1 and ref-A L2), which `make test-all` adds. The test processes and the CLI,
-# script and notebook processes they start share one persistent compilation cache.
+# of every design value's derivative on Finger-1 and ref-A L2), which `make test-all`
+# adds. The test processes and the CLI, script and notebook processes they start share
+# one persistent compilation cache.
 # A test still running after TEST_TIMEOUT seconds fails with its stack (pytest-timeout)
 # instead of holding the run; the slowest tests' times are listed at the end.
 TEST_CACHE ?= $(CURDIR)/.cache/test-xla
