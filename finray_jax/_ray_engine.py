@@ -192,13 +192,26 @@ def _map_unordered(engine: RayEngine, work: Callable, shared, items: Iterable) -
                     running[remote.remote(work, shared_ref, nxt)] = nxt
                 yield landed
     finally:
-        for ref in running:
-            try:
-                ray.cancel(ref, force=True)
-            except Exception:  # noqa: BLE001 - best effort on the way out
-                pass
         if owned:
+            # Disconnecting ends this run's job, and Ray stops the job's running tasks.
+            # (ray.cancel here can race with a task's completion and crash the driver
+            # inside Ray: "Tried to complete task that was not pending".)
             ray.shutdown()
+        else:  # (the caller's Ray session goes on: its tasks of this run are cancelled)
+            _cancel(ray, list(running))
+
+
+def _cancel(ray, refs: list) -> None:
+    """Cancel the tasks of refs still running, best effort (a task finishing at the same
+    moment may run to its end; its result is dropped)."""
+    if not refs:
+        return
+    _, pending = ray.wait(refs, num_returns=len(refs), timeout=0)
+    for ref in pending:
+        try:
+            ray.cancel(ref)
+        except Exception:  # noqa: BLE001 - best effort on the way out
+            pass
 
 
 _END = object()

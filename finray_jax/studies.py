@@ -6,6 +6,7 @@ Nothing here is tuned to the paper's numbers: the fingers are our assumed Finger
 The record that lets an interrupted study go on is `_study_record`.
 """
 
+import contextlib
 import dataclasses
 import os
 
@@ -328,17 +329,19 @@ def _grasped_cells(work: _ClampWork, solved, engine, say):
             say(f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm")
             yield int(i), int(j)
 
-    for landed in (engine or LocalEngine()).map_unordered(clamp_cell, work, todo()):
-        i, j = landed.item
-        where = f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm"
-        if landed.error is not None:
-            say(f"{where}: its task failed ({landed.error}); run the study again to retry it")
-            continue
-        if landed.value["why"]:
-            say(f"{where}: no grasp ({landed.value['why']})")
-        elif work.holding:
-            say(f"{dia[i]:g} mm object: release trace (mu = {work.friction:g}) done")
-        yield (i, j), landed.value
+    landing = (engine or LocalEngine()).map_unordered(clamp_cell, work, todo())
+    with contextlib.closing(landing):  # (left early, e.g. Ctrl-C: the engine stops its tasks)
+        for landed in landing:
+            i, j = landed.item
+            where = f"{dia[i]:g} mm object, l_c = {lc[j]:g} mm"
+            if landed.error is not None:
+                say(f"{where}: its task failed ({landed.error}); run the study again to retry it")
+                continue
+            if landed.value["why"]:
+                say(f"{where}: no grasp ({landed.value['why']})")
+            elif work.holding:
+                say(f"{dia[i]:g} mm object: release trace (mu = {work.friction:g}) done")
+            yield (i, j), landed.value
 
 
 def clamp_cell(work: _ClampWork, item) -> dict:

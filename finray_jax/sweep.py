@@ -309,8 +309,13 @@ def run_sweep(
     work = SweepWork(sweep, chunk_size(sweep))
     todo = chunks(sweep.size, work.per_chunk, have)[:max_chunks]
     tally = _Tally()
-    with _progress_bar(sweep.size, done, progress) as bar, _appending(csv_path, todo) as fh:
-        for landed in engine.map_unordered(solve_chunk, work, todo):
+    landing = engine.map_unordered(solve_chunk, work, todo)
+    with (
+        _progress_bar(sweep.size, done, progress) as bar,
+        _appending(csv_path, todo) as fh,
+        contextlib.closing(landing),  # (left early, e.g. Ctrl-C: the engine stops its tasks)
+    ):
+        for landed in landing:
             tally.add(landed)
             if landed.error is None:
                 rows = landed.value

@@ -318,6 +318,38 @@ def test_a_driver_interrupted_and_run_again_loses_and_repeats_no_row(
     assert_same_rows(out / "results.csv", local_csv)
 
 
+def test_a_sweep_stopped_in_a_program_connected_to_ray_leaves_it_connected(
+    cluster, cache, clamp_chunks, tmp_path
+):
+    """A program that connected to Ray itself (a notebook, say) and stops a sweep early:
+    the sweep's remaining tasks are cancelled, the program stays connected, and the same
+    sweep run again there completes with every design once."""
+    import logging
+
+    import ray
+
+    sw, local_csv = clamp_chunks
+    ray.init(
+        address=cluster, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR
+    )
+    try:
+
+        def stop(rows_done):
+            raise KeyboardInterrupt
+
+        engine = _engine(cluster, cache)
+        with pytest.raises(KeyboardInterrupt):
+            fsweep.run_sweep(sw, tmp_path / "ray", engine=engine, plot=False, after_chunk=stop)
+        assert ray.is_initialized()
+        kept = [int(r[0]) for r in _rows(tmp_path / "ray" / "results.csv")[1:]]
+        assert len(kept) in (CLAMP_CHUNK, sw.size % CLAMP_CHUNK)  # (one chunk: the last is short)
+        run = fsweep.run_sweep(sw, tmp_path / "ray", engine=engine, plot=False)
+        assert run.finished and not run.failed_chunks and ray.is_initialized()
+        assert_same_rows(run.csv, local_csv)
+    finally:
+        ray.shutdown()
+
+
 @pytest.mark.skipif(FINRAY is None, reason="the finray console script is not installed")
 def test_without_ray_the_ray_engine_says_how_to_install_it(tmp_path):
     """A Python without Ray (a `ray` package that cannot be imported stands in for it):
