@@ -254,6 +254,12 @@ def member_stiffness(finger):
     return stiffness(finger) if c.member_stiffness is None else c.member_stiffness
 
 
+def penalty_stiffnesses(finger) -> tuple:
+    """The three penalty stiffnesses (objects, support, members), in `with_stiffness`'s
+    order (N/mm^2)."""
+    return stiffness(finger), support_stiffness(finger), member_stiffness(finger)
+
+
 def member_penetration_limit(finger):
     """The members' largest allowed penetration into each other (mm)."""
     c = finger.contact

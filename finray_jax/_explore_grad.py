@@ -17,13 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._contact import (
-    friction_may_act,
-    member_stiffness,
-    stiffness,
-    support_stiffness,
-    with_friction,
-)
+from ._contact import friction_may_act, penalty_stiffnesses, with_friction
 from ._contact_result import contact_result
 from ._errors import FingerError
 from ._explore_design import Choices, design_values, finger_of
@@ -72,8 +66,7 @@ def penalties(state):
     grasp whose penetration limit did not hold). Zeros for the load case (unused)."""
     if state.choices.mode != "grasp":
         return jnp.zeros(3, jnp.float64)
-    f = state.finger
-    return jnp.asarray([stiffness(f), support_stiffness(f), member_stiffness(f)], jnp.float64)
+    return jnp.asarray(penalty_stiffnesses(state.finger), jnp.float64)
 
 
 @eqx.filter_jit
@@ -183,11 +176,10 @@ def holding_gradient(explorer, state) -> tuple[float, dict]:
     fixed["closing"] = jnp.asarray(float(state.closing), jnp.float64)
     fixed["pull"] = jnp.asarray(float(state.holding_pull), jnp.float64)
     x = jnp.asarray([float(fixed[n]) for n in names])
-    v, result, grad = _holding(
-        static, choices, names, explorer.program(choices).base, fixed, penalties(state), x,
-        sol.unknowns,
-        jnp.asarray(friction, jnp.float64),
-    )  # fmt: skip
+    base = explorer.program(choices).base
+    mu = jnp.asarray(friction, jnp.float64)
+    ks = penalties(state)
+    v, result, grad = _holding(static, choices, names, base, fixed, ks, x, sol.unknowns, mu)
     if not bool(result == RESULTS.successful):
         raise FingerError(f"the holding force's gradient: {RESULTS[result]}")
     return float(v), dict(zip(names, np.asarray(grad).tolist()))

@@ -29,7 +29,7 @@ import numpy as np
 
 from ._contact import (
     member_penetration_limit,
-    member_stiffness,
+    penalty_stiffnesses,
     stiffness,
     support_penetration_limit,
     support_stiffness,
@@ -214,7 +214,7 @@ class Explorer:
         # (explicit from the first grasp on: one compiled program for every grasp)
         ks = prog.stiffness
         if ks is None:
-            ks = (stiffness(finger), support_stiffness(finger), member_stiffness(finger))
+            ks = penalty_stiffnesses(finger)
         finger = with_stiffness(finger, *ks)
         w = jnp.asarray(self.direction, jnp.float64)
         closing = float(values["closing"])
